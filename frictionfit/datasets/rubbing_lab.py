@@ -1,0 +1,11 @@
+"""Rubbing-experiment folders in the interchange format (ours and the lab's)."""
+
+from __future__ import annotations
+
+from frictionfit._types import PathType
+from frictionfit.recording import Recording, read_dataset
+
+
+def load(path: PathType) -> list[Recording]:
+    """Read a folder of rubbing measurements; damaged ones are kept with their problems flagged."""
+    return read_dataset(path, on_error="flag")

@@ -1,0 +1,447 @@
+"""The interchange format: one recording = ``<name>.csv`` + ``<name>.json``.
+
+The CSV has a first column ``t`` (seconds from the start) and one column per
+channel. The JSON sidecar holds ``sample_rate_hz``, ``channels`` (name, unit),
+``events`` (time-stamped commands such as ``{"t": 0.5, "kind": "move",
+"target": "p2"}``), ``metadata`` (``label``, ``material``, ``session``, ...)
+and ``truth`` (generating parameters of simulated data). Unknown keys are kept
+and written back. Every loader and the recorder produce a :class:`Recording`;
+nothing else in frictionfit parses files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frictionfit._types import OnError, PathType, Samples, Times
+from frictionfit.errors import DatasetError, RecordingError
+
+__all__ = [
+    "Channel",
+    "Event",
+    "Problem",
+    "Recording",
+    "read_dataset",
+    "read_recording",
+    "validate",
+    "write_recording",
+]
+
+KNOWN_UNITS = frozenset({"N", "mN", "kN", "counts", "mm", "m", "kPa", "Pa", "V", "1", ""})
+REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
+#: Relative deviation of the median sample interval from 1/sample_rate_hz that is flagged.
+RATE_TOLERANCE = 0.02
+#: A channel whose finite samples span less than this (in its unit) is called dead.
+DEAD_CHANNEL_SPAN = 1e-12
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One signal column: its name and physical unit (e.g. ``"N"``)."""
+
+    name: str
+    unit: str
+
+
+@dataclass(frozen=True)
+class Event:
+    """A time-stamped command, e.g. ``Event(0.05, "move", "p2")``; ``t`` in seconds."""
+
+    t: float
+    kind: str
+    target: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"t": self.t, "kind": self.kind}
+        if self.target is not None:
+            out["target"] = self.target
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> Event:
+        rest = {k: v for k, v in d.items() if k not in ("t", "kind", "target")}
+        return cls(float(d["t"]), str(d["kind"]), d.get("target"), rest)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A validation finding: ``kind`` (e.g. ``"nonfinite"``), channel or None, and words."""
+
+    kind: str
+    detail: str
+    channel: str | None = None
+
+    def __str__(self) -> str:
+        chan = f"channel {self.channel!r}: " if self.channel else ""
+        return f"{chan}{self.detail}"
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A multichannel time series with units, events and metadata.
+
+    Parameters
+    ----------
+    t : ndarray of shape (n_samples,)
+        Sample times in seconds from the start of the recording.
+    samples : ndarray of shape (n_samples, n_channels)
+        The signals, float64, in the units of ``channels``.
+    sample_rate_hz : float
+        Nominal sample rate in Hz.
+    channels : tuple of Channel
+        Name and unit of each column of ``samples``.
+    events : tuple of Event
+        Commands with their times (e.g. the motor's ``move`` commands).
+    metadata : dict
+        ``label`` (the class to learn), ``material``, ``layers``, ``session``,
+        ``trial`` and any other free key/values.
+    truth : dict
+        Generating parameters, for simulated data only.
+    name : str
+        The file stem, or any identifier.
+    problems : tuple of Problem
+        What validation found and the caller chose to keep going with.
+    extra : dict
+        Unknown top-level sidecar keys, kept and written back.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rec = Recording.from_arrays(np.zeros((3, 1)) + [[0.0], [1.0], [2.0]], 1000.0, ["fx"])
+    >>> rec.n_samples, rec.channel_names
+    (3, ('fx',))
+    """
+
+    t: Times
+    samples: Samples
+    sample_rate_hz: float
+    channels: tuple[Channel, ...]
+    events: tuple[Event, ...] = ()
+    metadata: dict[str, Any] = field(default_factory=dict)
+    truth: dict[str, Any] = field(default_factory=dict)
+    name: str = "recording"
+    problems: tuple[Problem, ...] = ()
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=np.float64)
+        samples = np.asarray(self.samples, dtype=np.float64)
+        if samples.ndim == 1:
+            samples = samples[:, None]
+        if samples.ndim != 2 or t.shape != (samples.shape[0],):
+            raise RecordingError(
+                f"samples of shape {samples.shape} do not match t of shape {t.shape}; "
+                "expected samples (n_samples, n_channels) and t (n_samples,)",
+                path=self.name,
+            )
+        if len(self.channels) != samples.shape[1]:
+            raise RecordingError(
+                f"{len(self.channels)} channels named but samples have {samples.shape[1]} columns",
+                path=self.name,
+            )
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "samples", samples)
+        object.__setattr__(self, "channels", tuple(self.channels))
+        object.__setattr__(self, "events", tuple(self.events))
+        object.__setattr__(self, "problems", tuple(self.problems))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        samples: Samples,
+        sample_rate_hz: float,
+        channel_names: Sequence[str],
+        *,
+        units: str | Sequence[str] = "N",
+        t0: float = 0.0,
+        **kwargs: Any,
+    ) -> Recording:
+        """Build a recording sampled uniformly at ``sample_rate_hz`` from ``t0`` seconds."""
+        samples = np.asarray(samples, dtype=np.float64)
+        unit_list = [units] * len(channel_names) if isinstance(units, str) else list(units)
+        t = t0 + np.arange(samples.shape[0]) / float(sample_rate_hz)
+        channels = tuple(Channel(n, u) for n, u in zip(channel_names, unit_list))
+        return cls(t, samples, float(sample_rate_hz), channels, **kwargs)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.channels)
+
+    @property
+    def label(self) -> Any:
+        """``metadata["label"]``: the class to learn, or None."""
+        return self.metadata.get("label")
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if self.n_samples else 0.0
+
+    def channel(self, name: str) -> np.ndarray:
+        """The samples of one channel by name."""
+        try:
+            return self.samples[:, self.channel_names.index(name)]
+        except ValueError:
+            raise RecordingError(
+                f"no channel {name!r}; channels are {list(self.channel_names)}", path=self.name
+            ) from None
+
+    def select(self, start_s: float, stop_s: float) -> Recording:
+        """The part with ``start_s <= t < stop_s`` (seconds), events included."""
+        keep = (self.t >= start_s) & (self.t < stop_s)
+        events = tuple(e for e in self.events if start_s <= e.t < stop_s)
+        return replace(self, t=self.t[keep], samples=self.samples[keep], events=events)
+
+    def with_problems(self, problems: Sequence[Problem]) -> Recording:
+        return replace(self, problems=tuple(problems))
+
+    def sidecar(self) -> dict[str, Any]:
+        """The JSON sidecar as a dict (the exact schema of the interchange format)."""
+        out: dict[str, Any] = {
+            "sample_rate_hz": self.sample_rate_hz,
+            "channels": [{"name": c.name, "unit": c.unit} for c in self.channels],
+            "events": [e.to_json() for e in self.events],
+            "metadata": self.metadata,
+            "truth": self.truth,
+        }
+        out.update(self.extra)
+        if self.problems:
+            out["problems"] = [
+                {"kind": p.kind, "channel": p.channel, "detail": p.detail} for p in self.problems
+            ]
+        return out
+
+
+def validate(rec: Recording) -> list[Problem]:
+    """Check a recording; return the problems found (empty when it is clean).
+
+    Checks: time strictly increasing, runs of NaN/inf, dead (constant) channels,
+    the median sample interval against ``sample_rate_hz``, and unknown units.
+    Dropped samples (gaps in ``t``) are reported as kind ``"gap"``.
+    """
+    problems: list[Problem] = []
+    if rec.n_samples < 2:
+        return [Problem("too_short", f"only {rec.n_samples} sample(s)")]
+    dt = np.diff(rec.t)
+    if not np.all(np.isfinite(rec.t)):
+        problems.append(Problem("nonfinite_time", "column 't' has NaN/inf values"))
+    elif np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        problems.append(
+            Problem(
+                "nonmonotonic_time",
+                f"time is not strictly increasing at row {i + 1} "
+                f"(t={rec.t[i]:.6g} s then {rec.t[i + 1]:.6g} s)",
+            )
+        )
+    else:
+        nominal = 1.0 / rec.sample_rate_hz
+        median = float(np.median(dt))
+        if abs(median - nominal) > RATE_TOLERANCE * nominal:
+            problems.append(
+                Problem(
+                    "sample_rate",
+                    f"median sample interval {median * 1e3:.4g} ms does not match "
+                    f"sample_rate_hz={rec.sample_rate_hz:g} ({nominal * 1e3:.4g} ms)",
+                )
+            )
+        gaps = np.flatnonzero(dt > 1.5 * nominal)
+        if gaps.size:
+            lost = int(np.sum(np.round(dt[gaps] / nominal) - 1))
+            problems.append(
+                Problem(
+                    "gap",
+                    f"{gaps.size} gap(s) in t, about {lost} dropped sample(s); "
+                    f"first at t={rec.t[gaps[0]]:.6g} s",
+                )
+            )
+    for j, ch in enumerate(rec.channels):
+        x = rec.samples[:, j]
+        bad = ~np.isfinite(x)
+        if bad.any():
+            first = int(np.argmax(bad))
+            problems.append(
+                Problem(
+                    "nonfinite",
+                    f"{int(bad.sum())} NaN/inf sample(s), first at t={rec.t[first]:.6g} s",
+                    ch.name,
+                )
+            )
+        finite = x[~bad]
+        if finite.size and float(np.ptp(finite)) <= DEAD_CHANNEL_SPAN:
+            problems.append(
+                Problem("dead_channel", f"constant at {finite[0]:.6g} {ch.unit} (dead?)", ch.name)
+            )
+        if ch.unit not in KNOWN_UNITS:
+            problems.append(
+                Problem(
+                    "unit",
+                    f"unknown unit {ch.unit!r}; expected one of {sorted(KNOWN_UNITS)}",
+                    ch.name,
+                )
+            )
+    return problems
+
+
+#: Problems that are facts of a data link rather than defects: reported, never raised.
+INFORMATIONAL = frozenset({"gap"})
+
+
+def _check(rec: Recording, path: PathType, on_error: OnError) -> Recording:
+    problems = validate(rec)
+    if on_error == "raise":
+        fatal = [p for p in problems if p.kind not in INFORMATIONAL]
+        if fatal:
+            p = fatal[0]
+            more = f" (and {len(fatal) - 1} more problem(s))" if len(fatal) > 1 else ""
+            raise RecordingError(p.detail + more, path=path, channel=p.channel)
+    elif on_error != "flag":
+        raise ValueError(f"on_error must be 'raise' or 'flag', not {on_error!r}")
+    return rec.with_problems(problems)
+
+
+def _paths(path: PathType) -> tuple[Path, Path]:
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in (".csv", ".json") else p
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def _read_sidecar(json_path: Path) -> dict[str, Any]:
+    if not json_path.exists():
+        raise RecordingError("sidecar file is missing (every <name>.csv needs <name>.json)",
+                             path=json_path)
+    try:
+        side = json.loads(json_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"sidecar is not valid JSON: {exc}", path=json_path) from None
+    if not isinstance(side, dict):
+        raise RecordingError("sidecar must be a JSON object", path=json_path)
+    for key in REQUIRED_SIDECAR_FIELDS:
+        if key not in side:
+            raise RecordingError(f"sidecar is missing the field {key!r}", path=json_path)
+    rate = side["sample_rate_hz"]
+    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+        raise RecordingError(f"sample_rate_hz must be a positive number, not {rate!r}",
+                             path=json_path)
+    for i, ch in enumerate(side["channels"]):
+        if not isinstance(ch, dict) or "name" not in ch or "unit" not in ch:
+            raise RecordingError(f"channels[{i}] needs 'name' and 'unit', got {ch!r}",
+                                 path=json_path)
+    return side
+
+
+def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
+    """Read ``<name>.csv`` + ``<name>.json`` (either path, or the stem) and validate it.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The CSV, the JSON sidecar, or their common stem.
+    on_error : {"raise", "flag"}, default "raise"
+        ``"raise"``: a :class:`~frictionfit.errors.RecordingError` naming the file,
+        channel and problem. ``"flag"``: keep the data and record the problems in
+        ``Recording.problems`` (NaN stays NaN; fitting masks it).
+
+    Returns
+    -------
+    Recording
+    """
+    csv_path, json_path = _paths(path)
+    side = _read_sidecar(json_path)
+    if not csv_path.exists():
+        raise RecordingError("data file is missing", path=csv_path)
+    try:
+        frame = pd.read_csv(csv_path, dtype=np.float64, na_values=["nan", "NaN", ""])
+    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise RecordingError(f"cannot parse CSV: {exc}", path=csv_path) from None
+    names = [c["name"] for c in side["channels"]]
+    if list(frame.columns) != ["t", *names]:
+        raise RecordingError(
+            f"CSV columns {list(frame.columns)} do not match ['t'] + sidecar channels {names}",
+            path=csv_path,
+        )
+    known = {"sample_rate_hz", "channels", "events", "metadata", "truth", "problems"}
+    try:
+        events = tuple(Event.from_json(e) for e in side.get("events", []))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RecordingError(f"malformed event in sidecar: {exc!r}", path=json_path) from None
+    values = frame.to_numpy(dtype=np.float64)
+    rec = Recording(
+        t=values[:, 0],
+        samples=values[:, 1:],
+        sample_rate_hz=float(side["sample_rate_hz"]),
+        channels=tuple(Channel(c["name"], c["unit"]) for c in side["channels"]),
+        events=events,
+        metadata=dict(side.get("metadata", {})),
+        truth=dict(side.get("truth", {})),
+        name=csv_path.stem,
+        extra={k: v for k, v in side.items() if k not in known},
+    )
+    return _check(rec, csv_path, on_error)
+
+
+def write_recording(rec: Recording, path: PathType, *, decimals: int | None = None) -> Path:
+    """Write ``<path>.csv`` and ``<path>.json``; return the CSV path.
+
+    ``decimals=None`` writes every float exactly (round-trips bit for bit);
+    ``decimals=3`` writes millinewtons, as the lab's files do.
+    """
+    csv_path, json_path = _paths(path)
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = "%.17g" if decimals is None else f"%.{decimals}f"
+    frame = pd.DataFrame(rec.samples, columns=list(rec.channel_names))
+    frame.insert(0, "t", rec.t)
+    frame.to_csv(csv_path, index=False, float_format=fmt, na_rep="nan")
+    json_path.write_text(json.dumps(rec.sidecar(), indent=1, default=_json_default))
+    return csv_path
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"cannot write {type(obj).__name__} to a sidecar")
+
+
+def iter_recording_paths(folder: PathType) -> Iterator[Path]:
+    """The CSV files of a folder's recordings, sorted by name."""
+    yield from sorted(Path(folder).glob("*.csv"))
+
+
+def read_dataset(folder: PathType, *, on_error: OnError = "flag") -> list[Recording]:
+    """Read every recording in a folder (sorted by name).
+
+    ``on_error="flag"`` (the default here) keeps damaged recordings with their
+    problems listed, so one bad file never sinks a dataset; files that cannot be
+    parsed at all still raise, naming the file. Channel units must agree across
+    the dataset.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a folder of recordings")
+    paths = list(iter_recording_paths(folder))
+    if not paths:
+        raise DatasetError(f"{folder}: no <name>.csv + <name>.json recordings found")
+    recs = [read_recording(p, on_error=on_error) for p in paths]
+    first = recs[0]
+    for rec in recs[1:]:
+        if rec.channels != first.channels:
+            raise DatasetError(
+                f"{folder / rec.name}.json: channels {rec.channels} differ from those of "
+                f"{first.name} {first.channels} (units mismatch?)"
+            )
+    return recs
