@@ -1,0 +1,131 @@
+"""The nested contact-model family, simplest first; each member adds one physical effect.
+
+1. ``elastic_plastic``: offset, stiffness ``k`` and kinetic friction ``f_kin``
+   (plus the drive's nuisance parameters ``delay`` and ``ramp``);
+2. ``stick_slip``: + ``f_static_excess`` and ``slip_length`` (static peak above the
+   kinetic plateau);
+3. ``relaxation``: + one Maxwell branch (``relax_frac``, ``tau``);
+4. ``rich``: + a second branch (``relax_frac2``, ``tau2``) and viscous ``damping``.
+
+A model predicts one force channel of one motion: ``offset + direction * F(t)``,
+where ``direction`` (+1/-1, which way the channel sees the drive) is fixed from
+the data, and the drive's stroke is a nominal ``stroke_mm`` (stiffness is
+reported per nominal mm, since stroke and stiffness only appear as a product
+until the slider slips).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from frictionfit.models.params import Param
+from frictionfit.models.stick_slip import contact_force, drive
+
+__all__ = ["FAMILY", "PARAMS", "ContactModel", "get_model"]
+
+#: Every parameter of the family, defined once: name, unit, bounds, transform, default.
+PARAMS: dict[str, Param] = {
+    p.name: p
+    for p in (
+        Param("offset", "N", -1e6, 1e6, 0.0, "identity", "sensor offset of the channel"),
+        Param("k", "N/mm", 1e-3, 1e4, 5.0, "loglogit", "tangential contact stiffness"),
+        Param("f_kin", "N", 1e-5, 1e3, 0.5, "loglogit", "kinetic friction level"),
+        Param("delay", "s", 0.0, 0.3, 0.02, "logit", "motor latency after the command"),
+        Param("ramp", "s", 0.005, 1.0, 0.12, "loglogit", "duration of the finger movement"),
+        Param("f_static_excess", "N", 1e-5, 1e3, 0.1, "loglogit",
+              "static minus kinetic friction level"),
+        Param("slip_length", "mm", 1e-4, 10.0, 0.05, "loglogit",
+              "slip distance over which static friction weakens to kinetic"),
+        Param("relax_frac", "1", 0.0, 0.95, 0.3, "logit",
+              "fraction of the elastic force that relaxes (Maxwell branch 1)"),
+        Param("tau", "s", 1e-4, 100.0, 0.2, "loglogit", "relaxation time of branch 1"),
+        Param("relax_frac2", "1", 0.0, 0.95, 0.1, "logit",
+              "fraction of the remaining force that relaxes (branch 2)"),
+        Param("tau2", "s", 1e-4, 100.0, 2.0, "loglogit", "relaxation time of branch 2"),
+        Param("damping", "N s/mm", 1e-7, 10.0, 1e-4, "loglogit", "viscous (bristle) damping"),
+    )
+}
+
+
+class ContactModel(eqx.Module):
+    """A member of the family: a name, its force-law parameters, and its drive.
+
+    ``drive="events"`` builds the finger displacement from the two ``move``
+    command times and fits the motor's ``delay`` and ``ramp`` as nuisance
+    parameters; ``drive="given"`` takes a known displacement (mm) per sample
+    (e.g. a constant-velocity slide) and adds no parameters.
+
+    Examples
+    --------
+    >>> m = get_model("stick_slip")
+    >>> m.param_names
+    ('offset', 'k', 'f_kin', 'f_static_excess', 'slip_length', 'delay', 'ramp')
+    >>> m.with_drive("given").param_names[-1]
+    'slip_length'
+    """
+
+    name: str = eqx.field(static=True)
+    law_names: tuple[str, ...] = eqx.field(static=True)
+    drive: str = eqx.field(static=True, default="events")
+    stroke_mm: float = eqx.field(static=True, default=1.0)
+
+    def __check_init__(self):
+        if self.drive not in ("events", "given"):
+            raise ValueError(f"drive must be 'events' or 'given', not {self.drive!r}")
+
+    def with_drive(self, drive: str, stroke_mm: float = 1.0) -> ContactModel:
+        return ContactModel(self.name, self.law_names, drive, stroke_mm)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        extra = ("delay", "ramp") if self.drive == "events" else ()
+        return ("offset", *self.law_names, *extra)
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        return tuple(PARAMS[n] for n in self.param_names)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def physical(self, u):
+        """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
+        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
+
+    def predict(self, u, t, drive_input, direction):
+        """Predicted channel (N) at uniform times ``t`` (s) for unconstrained parameters ``u``.
+
+        ``drive_input``: ``(t_out, t_back)``, the ``move`` command times in s, for
+        ``drive="events"``; the displacement in mm at each ``t`` for ``drive="given"``.
+        ``direction``: +1 or -1, the sign with which the channel sees the force.
+        """
+        v = self.physical(u)
+        if self.drive == "events":
+            t_out, t_back = drive_input
+            x = drive(t, t_out, t_back, v["delay"], v["ramp"], self.stroke_mm)
+        else:
+            x = drive_input
+        force = contact_force(x, t[1] - t[0], **{n: v[n] for n in self.law_names})
+        return v["offset"] + direction * force
+
+
+_LAWS = {
+    "elastic_plastic": ("k", "f_kin"),
+    "stick_slip": ("k", "f_kin", "f_static_excess", "slip_length"),
+    "relaxation": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau"),
+    "rich": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
+             "relax_frac2", "tau2", "damping"),
+}
+
+#: The family, simplest first.
+FAMILY: tuple[ContactModel, ...] = tuple(ContactModel(n, laws) for n, laws in _LAWS.items())
+
+
+def get_model(name: str, drive: str = "events", stroke_mm: float = 1.0) -> ContactModel:
+    """The family member called ``name``, with the given drive."""
+    for m in FAMILY:
+        if m.name == name:
+            return m.with_drive(drive, stroke_mm)
+    raise ValueError(f"unknown model {name!r}; choose from {[m.name for m in FAMILY]} or 'auto'")

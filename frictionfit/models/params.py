@@ -1,0 +1,68 @@
+"""Named physical parameters with units and bounds, and their unconstrained coordinates.
+
+Fits run in an unconstrained coordinate ``u`` and report the physical value:
+``"identity"`` (offsets), ``"logit"`` (bounded, linear scale) or ``"loglogit"``
+(bounded, log scale, for quantities spanning decades such as stiffness or tau).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["Param"]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A model parameter: name, unit, physical bounds, transform, default and meaning."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    default: float
+    transform: str = "loglogit"
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if self.transform not in ("identity", "logit", "loglogit"):
+            raise ValueError(f"{self.name}: unknown transform {self.transform!r}")
+        if self.transform != "identity" and not self.lower < self.default < self.upper:
+            raise ValueError(f"{self.name}: default {self.default} not inside bounds")
+        if self.transform == "loglogit" and self.lower <= 0:
+            raise ValueError(f"{self.name}: loglogit needs a positive lower bound")
+
+    def _span(self, xp):
+        if self.transform == "loglogit":
+            return xp.log(self.lower), xp.log(self.upper)
+        return self.lower, self.upper
+
+    def to_physical(self, u):
+        """Physical value (in ``unit``) of unconstrained ``u``; works on JAX and NumPy arrays."""
+        if self.transform == "identity":
+            return u
+        xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
+        lo, hi = self._span(xp)
+        v = lo + (hi - lo) / (1.0 + xp.exp(-u))
+        return xp.exp(v) if self.transform == "loglogit" else v
+
+    def to_unconstrained(self, value):
+        """Unconstrained ``u`` of a physical value; values on or past a bound are pulled inside."""
+        if self.transform == "identity":
+            return np.asarray(value, dtype=np.float64)
+        lo, hi = self._span(np)
+        v = np.log(np.asarray(value, dtype=np.float64)) if self.transform == "loglogit" else value
+        frac = np.clip((v - lo) / (hi - lo), 1e-9, 1 - 1e-9)
+        return np.log(frac) - np.log1p(-frac)
+
+    def at_bound(self, value, rtol: float = 1e-3) -> np.ndarray:
+        """True where ``value`` sits within ``rtol`` (of the transformed span) of a bound."""
+        if self.transform == "identity":
+            return np.zeros(np.shape(value), dtype=bool)
+        lo, hi = self._span(np)
+        v = np.log(value) if self.transform == "loglogit" else np.asarray(value)
+        frac = (v - lo) / (hi - lo)
+        return (frac < rtol) | (frac > 1 - rtol)

@@ -1,0 +1,87 @@
+"""Pure force laws of the rubbing contact: the drive, and the elastic-plastic slider.
+
+All functions are plain JAX functions of arrays; the family in
+:mod:`frictionfit.models.family` names and bounds their parameters.
+
+The contact is a spring of stiffness ``k`` (N/mm) in series with a Coulomb slider
+(a play operator): the elastic displacement ``z`` follows the drive until
+``k |z|`` reaches the friction limit, then the slider slips. The limit weakens
+with accumulated slip ``s`` from a static level to a kinetic one,
+``f_kin + f_static_excess * exp(-s / slip_length)``, so a static peak and a
+kinetic plateau (stick-slip) come from one differentiable law. Slip history is
+reset when the drive reverses. Viscoelastic relaxation (Maxwell branches, exact
+exponential integrator) and viscous damping act on ``z``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from frictionfit.models.relaxation import maxwell_step
+
+__all__ = ["contact_force", "drive", "ramp_shape"]
+
+
+def ramp_shape(u):
+    """Raised-cosine ramp from 0 (u <= 0) to 1 (u >= 1); smooth inside."""
+    v = jnp.clip(u, 0.0, 1.0)
+    return 0.5 - 0.5 * jnp.cos(jnp.pi * v)
+
+
+def drive(t, t_out, t_back, delay, ramp, stroke):
+    """Finger displacement (mm) of one motion: out at ``t_out``, back at ``t_back``.
+
+    ``t``, ``t_out``, ``t_back``, ``delay`` (motor latency) and ``ramp`` (movement
+    duration) in seconds; ``stroke`` in mm.
+    """
+    out = ramp_shape((t - t_out - delay) / ramp)
+    back = ramp_shape((t - t_back - delay) / ramp)
+    return stroke * (out - back)
+
+
+def contact_force(
+    x,
+    dt,
+    k,
+    f_kin,
+    f_static_excess=0.0,
+    slip_length=1.0,
+    relax_frac=0.0,
+    tau=1.0,
+    relax_frac2=0.0,
+    tau2=1.0,
+    damping=0.0,
+):
+    """Tangential force (N) for a drive displacement ``x`` (mm) sampled every ``dt`` s.
+
+    Parameters (physical units): ``k`` N/mm, ``f_kin`` N, ``f_static_excess`` N
+    (static minus kinetic level), ``slip_length`` mm, ``relax_frac`` and
+    ``relax_frac2`` (fractions of the instantaneous force that relax; their sum is
+    kept below 1), ``tau``/``tau2`` s, ``damping`` N s/mm. With the defaults the
+    law is the plain elastic-plastic slider. Starts at rest with ``z = 0``.
+    Every update is an exact per-sample recurrence, stable for any stiffness.
+    """
+    frac1 = relax_frac
+    frac2 = relax_frac2 * (1.0 - relax_frac)
+
+    def step(carry, x_new):
+        z, s, w1, w2, x_old, direction = carry
+        dx = x_new - x_old
+        moving = dx != 0.0
+        new_dir = jnp.where(moving, jnp.sign(dx), direction)
+        s = jnp.where(moving & (new_dir != direction), 0.0, s)  # reversal: stuck again
+        limit = f_kin + f_static_excess * jnp.exp(-s / slip_length)
+        z_max = limit / k
+        z_trial = z + dx
+        z_new = jnp.clip(z_trial, -z_max, z_max)
+        s = s + jnp.abs(z_trial - z_new)
+        w1 = maxwell_step(w1, z, z_new, dt, tau)
+        w2 = maxwell_step(w2, z, z_new, dt, tau2)
+        force = k * (z_new - frac1 * w1 - frac2 * w2) + damping * (z_new - z) / dt
+        return (z_new, s, w1, w2, x_new, new_dir), force
+
+    zero = jnp.zeros((), dtype=x.dtype)
+    init = (zero, zero, zero, zero, x[0], jnp.ones((), dtype=x.dtype))
+    _, force = jax.lax.scan(step, init, x, unroll=8)
+    return force

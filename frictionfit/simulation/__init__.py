@@ -1,0 +1,1 @@
+"""Synthetic data with known truth: single trials, rubbing measurements, gestures, hard cases."""
