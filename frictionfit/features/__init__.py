@@ -20,6 +20,7 @@ FEATURE_SETS = {
     "spectral": "frictionfit.features.spectral:SpectralPCAFeatures",
     "raw": "frictionfit.features.raw:RawSignalFeatures",
     "gesture": "frictionfit.features.wavelet:GestureFeatures",
+    "touch": "frictionfit.features.touch:TouchPhysicalFeatures",
     "shortcut": "frictionfit.features.shortcut:ShortcutFeatures",
 }
 
