@@ -22,9 +22,10 @@ contact_s              s      number of frames in contact / rate
 max_area_cm2           cm²    max A
 area_growth_cm2_s      cm²/s  10-90 % rise of A before its maximum: 0.8 max A / (t90 - t10)
 relaxation_s           s      after the force peak, the time for F to fall 1/e of the way to
-                              its hold plateau (median of F over the last quarter of the
-                              hold, which ends when F < half the peak); 0 when F drops less
-                              than ``min_relax_drop`` x peak before release (no relaxation)
+                              its hold plateau: F (0.1-s moving average) where it is
+                              flattest between the peak and the release (F < 0.1 x peak);
+                              0 when F drops less than ``min_relax_drop`` x peak (no
+                              relaxation)
 repetition_hz          Hz     dominant frequency (>= ``min_repetition_hz``) of the CoP
                               motion along its main axis during contact; 0 if the touch
                               is shorter than 8 frames
@@ -62,6 +63,8 @@ TOUCH_FEATURES = (
 )
 #: 1 kPa acting on 1 cm² is 0.1 N.
 _KPA_CM2_TO_N = 0.1
+#: The hold after a press ends (release) when the force falls below this fraction of its peak.
+_RELEASE_FRAC = 0.1
 
 
 def _rise_rate(area: np.ndarray, rate_hz: float) -> float:
@@ -81,12 +84,14 @@ def _relaxation(force: np.ndarray, rate_hz: float, min_drop: float) -> float:
         return 0.0
     k = int(force.argmax())
     after = force[k:]
-    below = np.flatnonzero(after < 0.5 * peak)
-    end = int(below[0]) if below.size else after.size
-    if end < 4:
+    below = np.flatnonzero(after < _RELEASE_FRAC * peak)
+    hold = after[: int(below[0]) if below.size else after.size]
+    width = max(3, int(round(0.1 * rate_hz)))
+    if hold.size < width + 2:
         return 0.0
-    hold = after[:end]
-    plateau = float(np.median(hold[3 * end // 4 :]))
+    smooth = np.convolve(hold, np.ones(width) / width, mode="valid")
+    flattest = int(np.argmin(np.abs(np.gradient(smooth))[1:])) + 1
+    plateau = float(smooth[flattest])
     drop = peak - plateau
     if drop < min_drop * peak:
         return 0.0

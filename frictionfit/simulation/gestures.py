@@ -186,7 +186,7 @@ def _gesture_blobs(gesture: str, t: np.ndarray, p: dict) -> tuple[np.ndarray, ..
         c, s, w = flat_hand(0.25, 1.0)
         c[:, :, 1] += (9.0 * a * (sweep - 0.5))[:, None]
         load = 9.0 * f * env[:, None] * w
-        truth.update(contact_s=n * period, repetition_hz=1.0 / period, strokes=n)
+        truth.update(contact_s=(n - 0.25) * period, repetition_hz=1.0 / period, strokes=n)
     else:
         raise ValueError(f"unknown gesture {gesture!r}; choose from {GESTURES}")
     return c, s, load, truth
