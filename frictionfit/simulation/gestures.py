@@ -63,9 +63,9 @@ def _person(seed: int, person: int) -> dict:
     rng = np.random.default_rng([seed, person, 7])
     habits = {
         g: {
-            "force": float(rng.lognormal(0.0, 0.3)),
-            "duration": float(rng.lognormal(0.0, 0.3)),
-            "amplitude": float(rng.lognormal(0.0, 0.3)),
+            "force": float(rng.lognormal(0.0, 0.22)),
+            "duration": float(rng.lognormal(0.0, 0.22)),
+            "amplitude": float(rng.lognormal(0.0, 0.22)),
             "frequency": float(rng.lognormal(0.0, 0.25)),
             "variant": int(rng.integers(2)),
         }
