@@ -170,7 +170,7 @@ class Recording:
         samples = np.asarray(samples, dtype=np.float64)
         unit_list = [units] * len(channel_names) if isinstance(units, str) else list(units)
         t = t0 + np.arange(samples.shape[0]) / float(sample_rate_hz)
-        channels = tuple(Channel(n, u) for n, u in zip(channel_names, unit_list))
+        channels = tuple(Channel(n, u) for n, u in zip(channel_names, unit_list, strict=True))
         return cls(t, samples, float(sample_rate_hz), channels, **kwargs)
 
     @property
@@ -440,8 +440,10 @@ def read_dataset(folder: PathType, *, on_error: OnError = "flag") -> list[Record
     first = recs[0]
     for rec in recs[1:]:
         if rec.channels != first.channels:
+            mine = [f"{c.name} [{c.unit}]" for c in rec.channels]
+            theirs = [f"{c.name} [{c.unit}]" for c in first.channels]
             raise DatasetError(
-                f"{folder / rec.name}.json: channels {rec.channels} differ from those of "
-                f"{first.name} {first.channels} (units mismatch?)"
+                f"{folder / rec.name}.json: channels {mine} differ from {theirs} of "
+                f"{first.name} (units mismatch?)"
             )
     return recs

@@ -27,7 +27,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def shared_dir() -> Path | None:
-    """The team's ``shared/`` folder: ``$FRICTIONFIT_SHARED``, else ``../shared`` beside the repo."""
+    """The team's ``shared/`` folder: ``$FRICTIONFIT_SHARED``, else ``../shared`` by the repo."""
     env = os.environ.get("FRICTIONFIT_SHARED")
     candidate = Path(env) if env else REPO_ROOT.parent / "shared"
     return candidate if candidate.is_dir() else None
@@ -51,7 +51,9 @@ def load_dataset(spec: str) -> list[Recording]:
     """Load ``"KIND:PATH"`` (e.g. ``"recordings:data/sample"``) as a list of recordings."""
     kind, sep, path = spec.partition(":")
     if not sep or not path:
-        raise DatasetError(f"dataset spec {spec!r} must be KIND:PATH, KIND one of {list(DATASET_KINDS)}")
+        raise DatasetError(
+            f"dataset spec {spec!r} must be KIND:PATH, KIND one of {list(DATASET_KINDS)}"
+        )
     if kind not in DATASET_KINDS:
         raise DatasetError(f"unknown dataset kind {kind!r}; choose one of {list(DATASET_KINDS)}")
     module, _, func = DATASET_KINDS[kind].partition(":")

@@ -17,7 +17,6 @@ until the slider slips).
 from __future__ import annotations
 
 import equinox as eqx
-import jax.numpy as jnp
 
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force, drive

@@ -47,7 +47,9 @@ class Param:
         xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
         lo, hi = self._span(xp)
         v = lo + (hi - lo) / (1.0 + xp.exp(-u))
-        return xp.exp(v) if self.transform == "loglogit" else v
+        if self.transform == "loglogit":  # exp(log(upper)) can overshoot by an ulp
+            return xp.clip(xp.exp(v), self.lower, self.upper)
+        return v
 
     def to_unconstrained(self, value):
         """Unconstrained ``u`` of a physical value; values on or past a bound are pulled inside."""

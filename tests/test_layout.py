@@ -1,0 +1,36 @@
+"""Package-wide conventions: lint, the import-layer contract, a light CLI."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import REPO_ROOT
+
+
+def _tool(name):
+    beside = Path(sys.executable).with_name(name)
+    return str(beside) if beside.exists() else shutil.which(name) or pytest.fail(f"{name} missing")
+
+
+def test_ruff_clean():
+    ruff = _tool("ruff")
+    out = subprocess.run([ruff, "check", "frictionfit", "tests"], cwd=REPO_ROOT,
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_import_layers_contract():
+    tool = _tool("lint-imports")
+    out = subprocess.run([tool], cwd=REPO_ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_cli_help_does_not_import_jax():
+    code = ("import sys; from typer.testing import CliRunner; from frictionfit.cli import app;"
+            "r = CliRunner().invoke(app, ['--help']); assert r.exit_code == 0, r.output;"
+            "assert 'info' in r.output; print('jax' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"

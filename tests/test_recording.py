@@ -1,0 +1,145 @@
+"""The interchange format: round trip and every bad-input path, tested by its words."""
+
+import json
+
+import numpy as np
+import pytest
+
+from frictionfit.errors import DatasetError, RecordingError
+from frictionfit.recording import Event, Recording, read_dataset, read_recording, write_recording
+
+CHANNELS = ["thumb_x", "thumb_y", "index_x", "index_y"]
+
+
+def _rec(rng, n=500, name="s1_paper-2_01"):
+    x = np.round(rng.standard_normal((n, 4)), 3)
+    return Recording.from_arrays(
+        x, 1000.0, CHANNELS, name=name,
+        events=[Event(0.05, "move", "p2"), Event(0.3, "move", "p1")],
+        metadata={"label": "paper-2", "material": "paper", "layers": 2, "session": 1,
+                  "trial": 1, "free": {"a": 1}},
+        truth={"k": 3.0}, extra={"acquisition": {"frames_valid": 10}},
+    )
+
+
+def test_round_trip_is_exact(tmp_path, rng):
+    rec = _rec(rng)
+    write_recording(rec, tmp_path / rec.name)
+    back = read_recording(tmp_path / f"{rec.name}.csv")
+    assert np.array_equal(back.samples, rec.samples) and np.array_equal(back.t, rec.t)
+    assert back.metadata == rec.metadata and back.truth == rec.truth
+    assert back.events == rec.events and back.channels == rec.channels
+    assert back.extra == rec.extra
+
+
+def test_round_trip_with_millinewton_decimals(tmp_path, rng):
+    rec = _rec(rng)
+    write_recording(rec, tmp_path / "r", decimals=3)
+    assert np.array_equal(read_recording(tmp_path / "r").samples, rec.samples)
+
+
+def _write_bad(tmp_path, rng, mutate_csv=None, mutate_json=None):
+    rec = _rec(rng)
+    write_recording(rec, tmp_path / "bad")
+    if mutate_csv:
+        p = tmp_path / "bad.csv"
+        p.write_text(mutate_csv(p.read_text()))
+    if mutate_json:
+        p = tmp_path / "bad.json"
+        side = json.loads(p.read_text())
+        mutate_json(side)
+        p.write_text(json.dumps(side))
+    return tmp_path / "bad"
+
+
+def _swap_rows(text):
+    lines = text.splitlines()
+    lines[3], lines[4] = lines[4], lines[3]
+    return "\n".join(lines) + "\n"
+
+
+def _nan_in_index_x(text):
+    lines = text.splitlines()
+    for i in range(10, 20):
+        cells = lines[i].split(",")
+        cells[3] = "nan"
+        lines[i] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+def _dead_thumb_y(text):
+    lines = text.splitlines()
+    for i in range(1, len(lines)):
+        cells = lines[i].split(",")
+        cells[2] = "0.5"
+        lines[i] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    "mutate_csv, mutate_json, match",
+    [
+        (_swap_rows, None, r"bad\.csv: time is not strictly increasing at row"),
+        (_nan_in_index_x, None, r"bad\.csv: channel 'index_x': 10 NaN/inf sample"),
+        (_dead_thumb_y, None, r"channel 'thumb_y': constant at 0\.5 N \(dead\?\)"),
+        (None, lambda s: s.update(sample_rate_hz=500.0), r"does not match sample_rate_hz=500"),
+        (None, lambda s: s.pop("channels"), r"bad\.json: sidecar is missing the field 'channels'"),
+        (None, lambda s: s.update(sample_rate_hz=-1), r"sample_rate_hz must be a positive"),
+        (None, lambda s: s["channels"][0].update(name="thumb_z"), r"CSV columns .* do not match"),
+        (None, lambda s: s["channels"][1].update(unit="furlong"), r"'thumb_y': unknown unit"),
+        (None, lambda s: s["channels"][1].pop("unit"), r"channels\[1\] needs 'name' and 'unit'"),
+        (None, lambda s: s["events"].append({"kind": "move"}), r"malformed event"),
+    ],
+)
+def test_bad_input_names_file_channel_and_problem(tmp_path, rng, mutate_csv, mutate_json, match):
+    path = _write_bad(tmp_path, rng, mutate_csv, mutate_json)
+    with pytest.raises(RecordingError, match=match):
+        read_recording(path)
+
+
+def test_flag_policy_keeps_data_and_lists_problems(tmp_path, rng):
+    path = _write_bad(tmp_path, rng, mutate_csv=_nan_in_index_x)
+    rec = read_recording(path, on_error="flag")
+    assert [p.kind for p in rec.problems] == ["nonfinite"]
+    assert rec.problems[0].channel == "index_x"
+    assert np.isnan(rec.channel("index_x")).sum() == 10
+
+
+def test_missing_sidecar_and_data_file(tmp_path, rng):
+    write_recording(_rec(rng), tmp_path / "r")
+    (tmp_path / "r.json").unlink()
+    with pytest.raises(RecordingError, match=r"r\.json: sidecar file is missing"):
+        read_recording(tmp_path / "r.csv")
+    write_recording(_rec(rng), tmp_path / "q")
+    (tmp_path / "q.csv").unlink()
+    with pytest.raises(RecordingError, match=r"q\.csv: data file is missing"):
+        read_recording(tmp_path / "q")
+
+
+def test_gaps_are_reported_not_raised(tmp_path, rng):
+    rec = _rec(rng)
+    keep = np.r_[0:100, 150:500]
+    write_recording(Recording(rec.t[keep], rec.samples[keep], 1000.0, rec.channels), tmp_path / "g")
+    back = read_recording(tmp_path / "g")
+    assert [p.kind for p in back.problems] == ["gap"]
+    assert "about 50 dropped sample(s)" in back.problems[0].detail
+
+
+def test_dataset_units_must_agree(tmp_path, rng):
+    write_recording(_rec(rng, name="a"), tmp_path / "a")
+    other = _rec(rng, name="b")
+    other = Recording(other.t, other.samples, 1000.0,
+                      tuple(type(c)(c.name, "mN") for c in other.channels))
+    write_recording(other, tmp_path / "b")
+    words = r"b\.json: channels \['thumb_x \[mN\]'.* differ from \['thumb_x \[N\]'.*units mis"
+    with pytest.raises(DatasetError, match=words):
+        read_dataset(tmp_path)
+    with pytest.raises(DatasetError, match="no <name>.csv"):
+        read_dataset(tmp_path / "a.csv")
+
+
+def test_lab_dataset_reads_with_problems_flagged(shared):
+    recs = read_dataset(shared / "datasets" / "rubbing-lab")
+    assert len(recs) == 420
+    assert {r.label for r in recs} and len({r.label for r in recs}) == 35
+    assert any(p.kind == "nonfinite" for r in recs for p in r.problems)
