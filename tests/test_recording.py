@@ -134,8 +134,11 @@ def test_dataset_units_must_agree(tmp_path, rng):
     words = r"b\.json: channels \['thumb_x \[mN\]'.* differ from \['thumb_x \[N\]'.*units mis"
     with pytest.raises(DatasetError, match=words):
         read_dataset(tmp_path)
-    with pytest.raises(DatasetError, match="no <name>.csv"):
+    with pytest.raises(DatasetError, match=r"a\.csv: not a folder of recordings"):
         read_dataset(tmp_path / "a.csv")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match=r"empty: no <name>\.csv \+ <name>\.json recordings"):
+        read_dataset(tmp_path / "empty")
 
 
 def test_lab_dataset_reads_with_problems_flagged(shared):
