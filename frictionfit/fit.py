@@ -220,6 +220,16 @@ def _statistics(model, u, resid, jac, mask):
     bic = loglike_term + p * np.log(n_eff)
     values, stderrs, flags, conds = [], [], [], []
     for i in range(u.shape[0]):
+        if not (np.all(np.isfinite(jac[i])) and np.all(np.isfinite(u[i]))):
+            # Non-finite Jacobian: this trial's statistics are undefined; flag, don't raise.
+            names = model.param_names
+            values.append({n: float(p.to_physical(np.float64(np.nan_to_num(u[i, j]))))
+                           for j, (n, p) in enumerate(zip(names, model.params, strict=True))})
+            stderrs.append(dict.fromkeys(names, np.nan))
+            flags.append(dict.fromkeys(names, "singular"))
+            conds.append(np.inf)
+            chi2[i] = np.nan
+            continue
         jtj = jac[i].T @ jac[i]
         scale = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
         scaled = jtj / np.outer(scale, scale)

@@ -54,3 +54,20 @@ def test_report_and_frame_name_units_and_flags(stick_slip_fit):
 def test_bad_shapes_raise_named_error():
     with pytest.raises(FitError, match="y has 5 samples per trial but t has 4"):
         fit_trials(np.zeros((2, 5)), np.arange(4) / 1e3, (0.0, 0.002))
+
+
+def test_non_finite_jacobian_is_a_status_not_a_crash():
+    # Regression: one trial's non-finite Jacobian crashed eigvalsh and sank the batch.
+    from frictionfit.fit import _statistics, _status
+    from frictionfit.models import get_model
+
+    model = get_model("elastic_plastic")
+    u = np.zeros((2, model.n_params))
+    resid = np.full((2, 50), 0.1)
+    jac = np.ones((2, 50, model.n_params)) + np.arange(model.n_params)
+    jac[0, 3, 1] = np.nan
+    mask = np.ones((2, 50), dtype=bool)
+    stats = _statistics(model, u, resid, jac, mask)
+    assert stats["flags"][0]["k"] == "singular" and np.isnan(stats["stderr"][0]["k"])
+    assert _status(model, True, u[0], stats, 0, mask[0]) is Status.NONFINITE
+    assert np.isfinite(stats["chi2"][1])
