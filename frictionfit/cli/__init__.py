@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from frictionfit.cli import info
+from frictionfit.cli import fit, info
 
 app = typer.Typer(
     name="frictionfit",
@@ -22,6 +22,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.command("info")(info.info)
+app.command("fit")(fit.fit)
 
 
 def main() -> None:

@@ -1,0 +1,59 @@
+"""``frictionfit fit``: fit the contact model to every motion and channel of recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def fit(
+    paths: list[Path] = typer.Argument(..., help="Recordings (<name>.csv) or folders of them."),
+    model: str = typer.Option("auto", help="auto, or one of elastic_plastic, stick_slip, "
+                              "relaxation, rich."),
+    solver: str = typer.Option("lm", help="lm, dogleg or gauss-newton."),
+    out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
+    report: bool = typer.Option(False, help="Print the fit report of the first trial."),
+) -> None:
+    """Fit every non-preparatory motion x channel; one row per trial with status and stderr."""
+    import numpy as np
+
+    from frictionfit.errors import FrictionfitError
+    from frictionfit.fit import fit_report, fit_trials
+    from frictionfit.recording import read_recording
+    from frictionfit.segmentation import segment
+
+    files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
+    ys, t_outs, t_backs, ids, t = [], [], [], [], None
+    for f in files:
+        try:
+            motions = segment(read_recording(f, on_error="flag"))
+        except FrictionfitError as exc:
+            typer.echo(f"skipped: {exc}", err=True)  # one bad file never sinks the batch
+            continue
+        for m in motions:
+            if t is None:
+                t = m.t
+            n = min(t.size, m.t.size)
+            for j, ch in enumerate(m.channels):
+                y = np.full(t.size, np.nan)
+                y[:n] = m.samples[:n, j]
+                ys.append(y)
+                t_outs.append(m.t_out)
+                t_backs.append(m.t_back)
+                ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
+    if not ys:
+        typer.echo("error: no motion could be segmented from the given paths", err=True)
+        raise typer.Exit(2)
+    typer.echo(f"fitting {len(ys)} trials ({len(files)} recordings), model={model} ...")
+    result = fit_trials(np.asarray(ys), t, (np.asarray(t_outs), np.asarray(t_backs)),
+                        model=model, solver=solver)
+    frame = result.to_frame(ids)
+    if out.suffix == ".parquet":
+        frame.to_parquet(out)
+    else:
+        frame.to_csv(out, index=False)
+    counts = frame["status"].value_counts().to_dict()
+    typer.echo(f"{len(frame)} trials in {result.wall_s:.1f} s; status {counts}; wrote {out}")
+    if report:
+        typer.echo(fit_report(result, 0))

@@ -1,0 +1,32 @@
+"""``frictionfit fit`` end to end on a small simulated measurement."""
+
+import numpy as np
+import pandas as pd
+from typer.testing import CliRunner
+
+from frictionfit.cli import app
+from frictionfit.recording import Event, Recording, write_recording
+from frictionfit.simulation.trials import simulate_trials
+
+
+def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
+    ts = simulate_trials("elastic_plastic", 2, seed=4, snr_db=30)
+    samples = np.concatenate([ts.y.T, ts.y.T])  # two 2-s motions, two channels
+    events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
+              for k in range(2) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
+    rec = Recording.from_arrays(samples, 1000.0, ["index_x", "thumb_x"], events=events)
+    write_recording(rec, tmp_path / "m1")
+    (tmp_path / "broken.csv").write_text("t,x\n0,1\n")  # no sidecar: skipped, named
+    out = tmp_path / "fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "broken.json: sidecar file is missing" in result.output
+    frame = pd.read_csv(out)
+    assert list(frame["trial"]) == ["m1/motion1/index_x", "m1/motion1/thumb_x"]
+    assert {"k [N/mm]", "status"} <= set(frame.columns)
+
+
+def test_fit_with_nothing_to_fit_exits_2(tmp_path):
+    result = CliRunner().invoke(app, ["fit", str(tmp_path)])
+    assert result.exit_code == 2 and "no motion could be segmented" in result.output
