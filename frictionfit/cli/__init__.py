@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from frictionfit.cli import fit, info
+from frictionfit.cli import demo, fit, info
 
 app = typer.Typer(
     name="frictionfit",
@@ -21,6 +21,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+app.command("demo")(demo.demo)
 app.command("info")(info.info)
 app.command("fit")(fit.fit)
 
