@@ -46,6 +46,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
 from frictionfit.datasets.gesture_skin import frames_of
+from frictionfit.features.wavelet import check_frames
 from frictionfit.recording import Recording
 
 __all__ = ["TOUCH_FEATURES", "TouchPhysicalFeatures", "touch_features"]
@@ -162,13 +163,7 @@ def touch_features(
     >>> touch_features(frames, 50.0)[:3].round(2).tolist()  # N, s, cm²
     [5.0, 0.08, 1.0]
     """
-    p = np.asarray(frames, dtype=np.float64)
-    if p.ndim != 3 or p.shape[0] < 1:
-        raise ValueError(f"frames must be (time, rows, cols), got shape {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError(f"frames hold {int((~np.isfinite(p)).sum())} NaN/inf value(s)")
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    p = check_frames(frames, rate_hz)
     n, rows, cols = p.shape
     flat = p.reshape(n, rows * cols)
     contact = flat > contact_kpa

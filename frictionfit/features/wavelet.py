@@ -188,15 +188,22 @@ def gesture_features(
     >>> gesture_features(np.random.default_rng(0).random((150, 20, 20))).shape
     (270,)
     """
-    frames = np.asarray(frames, dtype=np.float64)
-    if frames.ndim != 3 or frames.shape[0] < 2:
-        raise ValueError(f"frames must be (time >= 2, rows, cols), got shape {frames.shape}")
-    if not np.all(np.isfinite(frames)):
-        raise ValueError(f"frames hold {int((~np.isfinite(frames)).sum())} NaN/inf value(s)")
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    frames = check_frames(frames, rate_hz, min_time=2)
     desc = frame_descriptors(upsample(frames))
     return np.concatenate([sequence_stats(desc), band_stats(desc, min_frames)], axis=1).ravel()
+
+
+def check_frames(frames, rate_hz: float, min_time: int = 1) -> np.ndarray:
+    """``frames`` as float64 (time, rows, cols); ValueError naming the problem otherwise."""
+    p = np.asarray(frames, dtype=np.float64)
+    if p.ndim != 3 or p.shape[0] < min_time:
+        shape = "(time, rows, cols)" if min_time <= 1 else f"(time >= {min_time}, rows, cols)"
+        raise ValueError(f"frames must be {shape}, got shape {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"frames hold {int((~np.isfinite(p)).sum())} NaN/inf value(s)")
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    return p
 
 
 def gesture_feature_names() -> list[str]:
