@@ -93,6 +93,18 @@ def _median(x: np.ndarray, default: float = 0.0) -> float:
     return float(np.median(finite)) if finite.size else default
 
 
+def _out_strokes(t, y, t_out, t_back):
+    """Per trial: baseline offset (N) and the finite out-stroke samples ``(times, y - offset)``."""
+    t_out = np.broadcast_to(np.asarray(t_out, dtype=np.float64), (y.shape[0],))
+    t_back = np.broadcast_to(np.asarray(t_back, dtype=np.float64), (y.shape[0],))
+    for yi, to, tb in zip(y, t_out, t_back, strict=True):
+        offset = _median(yi[t < to], default=_median(yi))
+        window = (t >= to) & (t < tb)
+        dev = yi[window] - offset
+        finite = np.isfinite(dev)
+        yield to, offset, t[window][finite], dev[finite]
+
+
 def initial_guess(model: ContactModel, t, y, t_out, t_back, direction) -> np.ndarray:
     """Data-driven starting points (unconstrained, ``(n_trials, n_params)``).
 
@@ -102,15 +114,10 @@ def initial_guess(model: ContactModel, t, y, t_out, t_back, direction) -> np.nda
     relaxation from the drop between the peak and the end of the out phase.
     """
     y = np.asarray(y, dtype=np.float64)
-    t_out = np.broadcast_to(np.asarray(t_out, dtype=np.float64), (y.shape[0],))
-    t_back = np.broadcast_to(np.asarray(t_back, dtype=np.float64), (y.shape[0],))
     rows = []
-    for yi, to, tb, d in zip(y, t_out, t_back, direction, strict=True):
-        offset = _median(yi[t < to], default=_median(yi))
-        window = (t >= to) & (t < tb)
-        out = d * (yi[window] - offset)
-        tw = t[window][np.isfinite(out)]
-        out = out[np.isfinite(out)]
+    strokes = _out_strokes(t, y, t_out, t_back)
+    for (to, offset, tw, dev), d in zip(strokes, direction, strict=True):
+        out = d * dev
         peak = max(float(out.max()), 1e-3) if out.size else 1e-3
         end = float(np.median(out[-50:])) if out.size >= 50 else 0.5 * peak
         guess = dict(offset=offset, f_kin=0.8 * peak, f_static_excess=0.2 * peak,
@@ -130,15 +137,8 @@ def initial_guess(model: ContactModel, t, y, t_out, t_back, direction) -> np.nda
 
 def _direction(t, y, t_out, t_back) -> np.ndarray:
     """+1/-1 per trial: the sign of the largest deviation during the out phase."""
-    t_out = np.broadcast_to(np.asarray(t_out, dtype=np.float64), (y.shape[0],))
-    t_back = np.broadcast_to(np.asarray(t_back, dtype=np.float64), (y.shape[0],))
-    out = []
-    for yi, to, tb in zip(y, t_out, t_back, strict=True):
-        base = _median(yi[t < to], default=_median(yi))
-        dev = yi[(t >= to) & (t < tb)] - base
-        dev = dev[np.isfinite(dev)]
-        out.append(1.0 if dev.size == 0 or dev.max() >= -dev.min() else -1.0)
-    return np.asarray(out)
+    return np.asarray([1.0 if dev.size == 0 or dev.max() >= -dev.min() else -1.0
+                       for _, _, _, dev in _out_strokes(t, y, t_out, t_back)])
 
 
 @dataclass
