@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from frictionfit.cli import demo, fit, info
+from frictionfit.cli import acquire, bench, classify, demo, fit, info, plot, simulate
 
 app = typer.Typer(
     name="frictionfit",
@@ -23,7 +23,16 @@ app = typer.Typer(
 )
 app.command("demo")(demo.demo)
 app.command("info")(info.info)
+app.add_typer(simulate.app, name="simulate")
+app.command("plot")(plot.plot)
 app.command("fit")(fit.fit)
+app.command("features")(classify.features)
+app.command("train")(classify.train)
+app.command("predict")(classify.predict)
+app.command("evaluate")(classify.evaluate)
+app.command("acquire")(acquire.acquire)
+app.command("rub")(acquire.rub)
+app.command("bench")(bench.bench)
 
 
 def main() -> None:
