@@ -1,7 +1,61 @@
-"""``frictionfit simulate``: (placeholder until the simulator lands)."""
+"""``frictionfit simulate``: rubbing measurements (default) or touch gestures with known truth."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import typer
 
 app = typer.Typer(help="Simulate rubbing measurements or touch gestures with known truth.")
+
+
+@app.callback(invoke_without_command=True)
+def simulate(
+    ctx: typer.Context,
+    out: Path = typer.Option(None, help="Folder to write the measurements to (required)."),
+    seed: int = typer.Option(0, help="Master seed: the same seed gives the same files."),
+    sessions: int = typer.Option(2, min=1, help="Recording sessions (days), numbered from 1."),
+    measurements_per_class: int = typer.Option(2, min=1, help="Measurements per class and "
+                                               "session."),
+    classes: str = typer.Option("", help="Comma-separated class labels (default: all 35), "
+                                "e.g. 'paper-1,paper-2'."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Write simulated rubbing measurements (35 classes x sessions x measurements-per-class)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    if out is None:
+        typer.echo("error: --out DIR is required", err=True)
+        raise typer.Exit(2)
+    from rich.progress import Progress
+
+    from frictionfit.simulation.materials import CLASSES
+    from frictionfit.simulation.measurements import simulate_dataset
+
+    labels = [c.strip() for c in classes.split(",") if c.strip()] or list(CLASSES)
+    unknown = [c for c in labels if c not in CLASSES]
+    if unknown:
+        typer.echo(f"error: unknown class(es) {unknown}; known: {', '.join(CLASSES)}", err=True)
+        raise typer.Exit(2)
+    total = sessions * len(labels) * measurements_per_class
+    with Progress(disable=not progress, transient=True) as bar:
+        task = bar.add_task("simulating measurements", total=total)
+        paths = simulate_dataset(out, seed, sessions, measurements_per_class, labels,
+                                 progress=lambda n: bar.advance(task, n))
+    typer.echo(f"wrote {len(paths)} measurements ({len(labels)} classes, {sessions} session(s)) "
+               f"to {out}")
+
+
+@app.command("gestures")
+def gestures(
+    out: Path = typer.Option(..., help="Folder to write the SYNTHETIC gesture .npz files to."),
+    seed: int = typer.Option(0, help="Master seed."),
+    people: int = typer.Option(5, min=1, help="Number of people."),
+    repetitions: int = typer.Option(16, min=1, help="Repetitions of each gesture per person."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Write simulated touch gestures: people x 7 gestures x repetitions (issue 10)."""
+    from frictionfit.simulation.gestures import simulate_gestures
+
+    paths = simulate_gestures(out, seed, people, repetitions, progress=progress)
+    typer.echo(f"wrote {len(paths)} synthetic gestures to {out}")

@@ -1,0 +1,373 @@
+"""Whole rubbing measurements with known truth, shaped like the lab's recordings.
+
+A measurement: the fingers hold a textile, the index finger runs 5 motions (``move p2``
+at 0.05 + 2k s, ``move p1`` at 1.05 + 2k s), 10.05 s at 1 kHz, channels ``thumb_x``,
+``thumb_y``, ``index_x``, ``index_y`` in N, written as ``s{session}_{label}_{trial:02d}``.
+
+The tangential force is the contact law of :mod:`frictionfit.models` (``rich``: static
+peak, slip weakening, two Maxwell branches, damping) driven continuously through the
+whole measurement, so each motion starts from the state the previous one left
+(the fitter assumes a start at rest). Effects the fitted family does not model:
+
+- motor: trapezoid velocity profile (acceleration phases of 8-15 ms) with a latency,
+  stroke and duration that drift per session and jitter per movement;
+- a viscous sliding drag proportional to the finger velocity;
+- channels: thumb ~ -gain x index, lateral (y) components, cross-talk, the index
+  sensor turning with the finger, leakage of the normal force with finger position;
+- sensor offsets per session with a slow linear + random-walk drift, AR(1) noise
+  (1.5-4 mN), 50 Hz pickup on some sessions, ADC quantisation of 1 or 2 mN;
+- transmission faults in about 1 motion in 6: dropped rows, NaN bursts, stuck values,
+  spikes of up to tens of newtons.
+
+The force of every motion of every measurement comes from one batched (vmapped)
+JAX call. All randomness comes from ``numpy`` generators keyed on
+``(seed, session, class, trial)``, so a measurement does not depend on which other
+classes are simulated with it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import lfilter
+
+from frictionfit._types import PathType
+from frictionfit.recording import Channel, Event, Recording, write_recording
+from frictionfit.simulation.materials import (
+    CLASSES,
+    SESSION_SPREAD,
+    draw_parameters,
+    material_for,
+)
+
+__all__ = ["CHANNELS", "FAULT_KINDS", "simulate_dataset", "simulate_measurements"]
+
+RATE_HZ = 1000.0
+N_MOTIONS = 5
+PERIOD_S = 2.0
+T_OUT, T_BACK = 0.05, 1.05
+N_SAMPLES = 10050
+CHANNELS = ("thumb_x", "thumb_y", "index_x", "index_y")
+FAULT_KINDS = ("drop", "nan", "stuck", "spike")
+FAULT_RATE = 1.0 / 6.0
+_PREFIX = 1000  # samples of history simulated before each motion (the previous back stroke)
+_OWN = 2050  # samples of each motion window (motion 4 runs to 10.05 s)
+_LAW = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
+        "relax_frac2", "tau2", "damping")
+_FORCE_SCALED = ("k", "f_kin", "f_static_excess", "damping", "drag")
+
+
+def motor_profile(t: np.ndarray, start: float, duration: float, accel: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Trapezoid-velocity move from 0 to 1: position and velocity (1/s) at times ``t`` (s).
+
+    The motor starts at ``start`` s, accelerates for ``accel`` s, cruises, decelerates
+    for ``accel`` s and stops at ``start + duration``.
+    """
+    tau = np.clip(t - start, 0.0, duration)
+    v_max = 1.0 / (duration - accel)
+    a = v_max / accel
+    rise = 0.5 * a * np.minimum(tau, accel) ** 2
+    cruise = v_max * np.clip(tau - accel, 0.0, duration - 2 * accel)
+    tail = np.clip(tau - (duration - accel), 0.0, accel)
+    fall = v_max * tail - 0.5 * a * tail**2
+    vel = np.where((t > start) & (t < start + duration),
+                   np.minimum(np.minimum(a * tau, v_max), a * (duration - tau)), 0.0)
+    return rise + cruise + fall, vel
+
+
+def _session(seed: int, session: int) -> dict:
+    """Rig state of one day: motor, gains, offsets, noise; drawn from ``(seed, session)``."""
+    rng = np.random.default_rng([seed, session, 0xD1A])
+    return {
+        "session": session,
+        "delay_s": rng.uniform(0.015, 0.035),
+        "duration_s": rng.uniform(0.10, 0.15),
+        "accel_s": rng.uniform(0.008, 0.015),
+        "stroke_mm": rng.uniform(0.9, 1.1),
+        "gains": [-rng.uniform(0.75, 1.1), rng.normal(0.0, 0.1),
+                  float(np.exp(rng.normal(0.0, 0.05))), rng.normal(0.0, 0.12)],
+        "crosstalk": rng.normal(0.0, 0.03),
+        "rotation_rad": rng.uniform(0.02, 0.06),
+        "leak_n": rng.normal(0.0, 0.03, 4).tolist(),
+        "offsets_n": rng.normal(0.0, 0.6, 4).tolist(),
+        "noise_sd_n": rng.uniform(0.0015, 0.004),
+        "noise_ar1": rng.uniform(0.5, 0.85),
+        "hum_n": float(rng.uniform(0.001, 0.005)) if rng.random() < 0.5 else 0.0,
+        "quantum_n": float(rng.choice([0.001, 0.002])),
+    }
+
+
+def _plan(seed: int, session: dict, label: str, trial: int) -> dict:
+    """Everything random about one measurement, drawn before any force is computed."""
+    cls = CLASSES.index(label)
+    state = np.random.default_rng([seed, session["session"], cls, 0x5E5])
+    factor = {k: float(np.exp(sd * state.standard_normal())) for k, sd in SESSION_SPREAD.items()}
+    rng = np.random.default_rng([seed, session["session"], cls, trial])
+    base = draw_parameters(material_for(label), rng, factor)
+    motions = []
+    for i in range(N_MOTIONS):
+        p = dict(base)
+        for name in ("k", "f_kin", "f_static_excess", "tau"):
+            p[name] *= float(np.exp(0.02 * rng.standard_normal()))
+        p["f_kin"] *= 1.0 - 0.01 * i  # slow wear within the measurement
+        moves = []
+        for t_cmd in (PERIOD_S * i + T_OUT, PERIOD_S * i + T_BACK):
+            delay = max(0.005, session["delay_s"] + 0.002 * rng.standard_normal())
+            dur = session["duration_s"] * float(np.exp(0.02 * rng.standard_normal()))
+            moves.append((t_cmd + delay, dur))
+        motions.append({"params": p, "moves": moves})
+    faults = []
+    for i in range(N_MOTIONS):
+        if rng.random() < FAULT_RATE:
+            faults.append(_draw_fault(rng, i))
+    return {"label": label, "trial": trial, "session": session, "base": base,
+            "preload": float(rng.uniform(-0.3, 1.0)), "motions": motions, "faults": faults,
+            "offset_jitter": rng.normal(0.0, 0.05, 4), "drift_slope": rng.normal(0.0, 0.002, 4),
+            "rng": rng}
+
+
+def _draw_fault(rng: np.random.Generator, motion: int) -> dict:
+    kind = str(rng.choice(FAULT_KINDS))
+    length = {"drop": (5, 250), "nan": (5, 100), "stuck": (20, 300), "spike": (1, 5)}[kind]
+    n = int(rng.integers(*length))
+    start = int(PERIOD_S * RATE_HZ * motion + rng.integers(0, int(PERIOD_S * RATE_HZ) - n))
+    channels = list(CHANNELS)
+    if kind in ("nan", "spike") and rng.random() < 0.5:
+        channels = sorted(rng.choice(CHANNELS, int(rng.integers(1, 4)), replace=False).tolist())
+    return {"motion": motion, "kind": kind, "start": start, "n": n, "channels": channels}
+
+
+def _drive(plan: dict, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Finger position (mm) and velocity (mm/s) of motion ``i``'s window, history included."""
+    s = plan["session"]
+    t = PERIOD_S * i + (np.arange(_PREFIX + _OWN) - _PREFIX) / RATE_HZ
+    stroke, accel = s["stroke_mm"], s["accel_s"]
+    if i == 0:  # closing the fingers leaves an uncontrolled internal force
+        prev_start, prev_dur, amp = T_OUT - 0.95, s["duration_s"], plan["preload"] * stroke
+    else:
+        (prev_start, prev_dur), amp = plan["motions"][i - 1]["moves"][1], stroke
+    x0, v0 = motor_profile(t, prev_start, prev_dur, accel)
+    (out_s, out_d), (back_s, back_d) = plan["motions"][i]["moves"]
+    x1, v1 = motor_profile(t, out_s, out_d, accel)
+    x2, v2 = motor_profile(t, back_s, back_d, accel)
+    return amp * (1 - x0) + stroke * (x1 - x2), -amp * v0 + stroke * (v1 - v2)
+
+
+@lru_cache(maxsize=1)
+def _batched_law():
+    import jax
+
+    from frictionfit.models import contact_force
+
+    return jax.jit(jax.vmap(lambda xi, *p: contact_force(xi, 1.0 / RATE_HZ, *p)))
+
+
+def _forces(x: np.ndarray, params: dict[str, np.ndarray], pad_to: int) -> np.ndarray:
+    """Contact force (N) of every window in one jitted, vmapped call: ``x`` is (B, n) in mm.
+
+    The batch is padded (repeating its last row) to a multiple of ``pad_to`` so that
+    batches of different sizes share one compilation.
+    """
+    n = x.shape[0]
+    idx = np.minimum(np.arange(-(-n // pad_to) * pad_to), n - 1)
+    out = _batched_law()(x[idx], *(params[name][idx] for name in _LAW))
+    return np.asarray(out)[:n]
+
+
+def _channel_gains(s: dict) -> np.ndarray:
+    g_tx, g_ty, g_ix, g_iy = s["gains"]
+    return np.array([g_tx, g_ty + s["crosstalk"] * g_tx, g_ix, g_iy])
+
+
+def _channels(plan: dict, force: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Noise-free channel signals (n, 4) in N from the force and finger position."""
+    s = plan["session"]
+    g_tx, g_ty, g_ix, g_iy = s["gains"]
+    pos = x / s["stroke_mm"]
+    theta = s["rotation_rad"] * pos
+    thumb_x = g_tx * force
+    out = np.stack([thumb_x, g_ty * force + s["crosstalk"] * thumb_x,
+                    g_ix * force * np.cos(theta), (g_iy + g_ix * np.sin(theta)) * force], axis=1)
+    return out + pos[:, None] * np.asarray(s["leak_n"])
+
+
+def _sensor(plan: dict, clean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets, drift, AR(1) noise, 50 Hz pickup and quantisation on top of ``clean`` (n, 4).
+
+    Returns the measured signals and their noise-free level (clean + offsets + drift), N.
+    """
+    s, rng = plan["session"], plan["rng"]
+    t = np.arange(clean.shape[0]) / RATE_HZ
+    offsets = np.asarray(s["offsets_n"]) + plan["offset_jitter"]
+    walk = np.cumsum(rng.normal(0.0, 5e-5, clean.shape), axis=0)
+    white = rng.standard_normal(clean.shape) * s["noise_sd_n"] * np.sqrt(1 - s["noise_ar1"] ** 2)
+    noise = lfilter([1.0], [1.0, -s["noise_ar1"]], white, axis=0)
+    hum = s["hum_n"] * rng.uniform(0.3, 1.0, 4) * np.sin(
+        2 * np.pi * 50.0 * t[:, None] + rng.uniform(0, 2 * np.pi, 4))
+    level = clean + offsets + plan["drift_slope"] * t[:, None] + walk
+    step = round(s["quantum_n"] * 1000)  # mN per ADC count
+    # exact multiples of 1 mN, so the 3-decimal CSV reads back to the same floats
+    return np.round((level + noise + hum) * 1000 / step) * step / 1000, level
+
+
+def _apply_faults(plan: dict, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rng = plan["rng"]
+    keep = np.ones(t.size, dtype=bool)
+    for f in plan["faults"]:
+        a, b = f["start"], f["start"] + f["n"]
+        cols = [CHANNELS.index(c) for c in f["channels"]]
+        if f["kind"] == "drop":
+            keep[a:b] = False
+        elif f["kind"] == "nan":
+            y[a:b, cols] = np.nan
+        elif f["kind"] == "stuck":
+            y[a:b] = y[a]
+        else:
+            for _ in range(f["n"]):
+                j = min(int(rng.integers(a, a + 200)), y.shape[0] - 1)
+                y[j, cols] = np.round(y[j, cols] + rng.choice([-1, 1]) * rng.uniform(2, 40), 3)
+    return t[keep], y[keep]
+
+
+def _truth(plan: dict, level: np.ndarray, seed: int) -> dict:
+    s = plan["session"]
+    gains = _channel_gains(s)
+    motions = []
+    for i, m in enumerate(plan["motions"]):
+        cmd = int(round((PERIOD_S * i + T_OUT) * RATE_HZ))
+        per_channel = {}
+        for j, name in enumerate(CHANNELS):
+            g = abs(gains[j])
+            eff = {n: float(v * (g if n in _FORCE_SCALED else 1.0)) for n, v in m["params"].items()}
+            eff["k"] *= s["stroke_mm"]  # per nominal mm of the fitted drive
+            eff["slip_length"] /= s["stroke_mm"]
+            per_channel[name] = {"direction": float(np.sign(gains[j])), "gain": float(gains[j]),
+                                 "baseline": float(level[cmd, j]), **eff}
+        (o_s, o_d), (b_s, b_d) = m["moves"]
+        motions.append({"index": i, "move_out": [o_s, o_s + o_d], "move_back": [b_s, b_s + b_d],
+                        "delay": o_s - PERIOD_S * i - T_OUT, "ramp": o_d,
+                        "params": m["params"], "channels": per_channel})
+    faults = [{"motion": f["motion"], "kind": f["kind"], "channels": f["channels"],
+               "t_start": f["start"] / RATE_HZ, "t_stop": (f["start"] + f["n"]) / RATE_HZ}
+              for f in plan["faults"]]
+    session = {k: v for k, v in s.items() if k != "session"}
+    return {"generator": "frictionfit.simulation.measurements", "seed": seed,
+            "law": "rich + viscous drag", "session": session, "preload": plan["preload"],
+            "motions": motions, "faults": faults}
+
+
+def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, *,
+                          pad_to: int = 5 * 35) -> list[Recording]:
+    """Simulate measurements given as ``(session, label, trial)``; forces in one batch.
+
+    Parameters
+    ----------
+    specs : sequence of (int, str, int)
+        Session number, class label (see :data:`~frictionfit.simulation.materials.CLASSES`)
+        and trial number of each measurement.
+    seed : int
+        Master seed; each measurement depends only on it and its own spec.
+    pad_to : int
+        Motions per compiled batch shape (padding; does not change the result).
+
+    Returns
+    -------
+    list of Recording
+        In the order of ``specs``, named ``s{session}_{label}_{trial:02d}``, with the
+        generating parameters, movement times (s) and faults in ``truth``.
+
+    Examples
+    --------
+    >>> rec, = simulate_measurements([(1, "paper-2", 1)], seed=3)
+    >>> rec.name, rec.channel_names, rec.samples.shape[1]
+    ('s1_paper-2_01', ('thumb_x', 'thumb_y', 'index_x', 'index_y'), 4)
+    """
+    sessions: dict[int, dict] = {}
+    plans = []
+    for session, label, trial in specs:
+        if session not in sessions:
+            sessions[session] = _session(seed, session)
+        plans.append(_plan(seed, sessions[session], label, trial))
+    drives = [_drive(p, i) for p in plans for i in range(N_MOTIONS)]
+    x = np.stack([d[0] for d in drives])
+    v = np.stack([d[1] for d in drives])
+    params = {n: np.array([m["params"][n] for p in plans for m in p["motions"]]) for n in _LAW}
+    drag = np.array([m["params"]["drag"] for p in plans for m in p["motions"]])
+    force = (_forces(x, params, pad_to) + drag[:, None] * v)[:, _PREFIX:]
+    x = x[:, _PREFIX:]
+    recs = []
+    for k, plan in enumerate(plans):
+        rows = slice(k * N_MOTIONS, (k + 1) * N_MOTIONS)
+        f = np.concatenate([w[: int(PERIOD_S * RATE_HZ)] for w in force[rows][:-1]]
+                           + [force[rows][-1]])
+        pos = np.concatenate([w[: int(PERIOD_S * RATE_HZ)] for w in x[rows][:-1]] + [x[rows][-1]])
+        clean = _channels(plan, f[:N_SAMPLES], pos[:N_SAMPLES])
+        measured, level = _sensor(plan, clean)
+        t, y = _apply_faults(plan, np.arange(N_SAMPLES) / RATE_HZ, measured)
+        material = material_for(plan["label"])
+        events = [Event(PERIOD_S * i + dt, "move", tgt)
+                  for i in range(N_MOTIONS) for dt, tgt in ((T_OUT, "p2"), (T_BACK, "p1"))]
+        metadata = {"label": plan["label"], "material": material.slug, "layers": material.layers,
+                    "session": plan["session"]["session"], "trial": plan["trial"],
+                    "rig": "frictionfit-simulator", "synthetic": True}
+        recs.append(Recording(
+            t, y, RATE_HZ, tuple(Channel(c, "N") for c in CHANNELS),
+            events=events, metadata=metadata, truth=_truth(plan, level, seed),
+            name=f"s{plan['session']['session']}_{plan['label']}_{plan['trial']:02d}"))
+    return recs
+
+
+def simulate_dataset(
+    out: PathType,
+    seed: int = 0,
+    sessions: int = 2,
+    measurements_per_class: int = 2,
+    classes: Sequence[str] | None = None,
+    *,
+    batch: int = 35,
+    progress: Callable[[int], None] | None = None,
+) -> list[Path]:
+    """Write ``sessions x classes x measurements_per_class`` measurements to ``out``.
+
+    Parameters
+    ----------
+    out : str or PathLike
+        Folder (created if needed); one ``<name>.csv`` + ``<name>.json`` per measurement,
+        forces in N with 3 decimals (as the lab writes them).
+    seed : int
+        Master seed: the same seed gives the same bytes.
+    sessions, measurements_per_class : int
+        Sessions are numbered from 1, trials from 1 within each session and class.
+    classes : sequence of str, optional
+        A subset of the 35 class labels (default: all); a measurement's data do not
+        depend on the subset.
+    batch : int
+        Measurements simulated per batched JAX call.
+    progress : callable, optional
+        Called with the number of measurements written after each batch.
+
+    Returns
+    -------
+    list of Path
+        The CSV files written.
+    """
+    labels = list(CLASSES if classes is None else classes)
+    for label in labels:
+        material_for(label)
+    if sessions < 1 or measurements_per_class < 1:
+        raise ValueError(f"sessions and measurements_per_class must be >= 1, "
+                         f"got {sessions} and {measurements_per_class}")
+    specs = [(s, label, trial) for s in range(1, sessions + 1) for label in labels
+             for trial in range(1, measurements_per_class + 1)]
+    paths = []
+    for start in range(0, len(specs), batch):
+        chunk = specs[start:start + batch]
+        for rec in simulate_measurements(chunk, seed, pad_to=N_MOTIONS * batch):
+            paths.append(write_recording(rec, Path(out) / rec.name, decimals=3))
+        if progress is not None:
+            progress(len(chunk))
+    return paths
