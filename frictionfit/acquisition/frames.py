@@ -187,6 +187,8 @@ class FrameParser:
     counter_step : int, optional
         Expected counter increment between frames; learned from the first two
         frames when omitted (and lowered if a smaller positive step is seen).
+        The counter is forgotten, and the step learned anew, at every acknowledge
+        of a configuration.
 
     Attributes
     ----------
@@ -209,11 +211,12 @@ class FrameParser:
         self.frames_corrupted = 0
         self.bytes_discarded = 0
         self.samples_lost = 0
-        self.restart_counter(counter_step)
+        self._given_step = counter_step
+        self.restart_counter()
 
-    def restart_counter(self, counter_step: int | None = None) -> None:
-        """Forget the last counter (e.g. after a new configuration or a reconnect)."""
-        self.counter_step = counter_step
+    def restart_counter(self) -> None:
+        """Forget the last counter and the learned step (done at every acknowledge)."""
+        self.counter_step = self._given_step
         self._last_counter: int | None = None
 
     def _lost(self, counter: int) -> int:
@@ -262,7 +265,9 @@ class FrameParser:
                 pos += 1
                 continue
             msg = decode(frame)
-            if isinstance(msg, DataFrame):
+            if isinstance(msg, ConfigAck):  # a new configuration: the step may change
+                self.restart_counter()
+            elif isinstance(msg, DataFrame):
                 self.frames_valid += 1
                 lost = self._lost(msg.counter)
                 self.samples_lost += lost

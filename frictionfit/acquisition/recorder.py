@@ -1,0 +1,241 @@
+"""Write a recording while it happens, so a crash loses at most the last second.
+
+:class:`RecordingWriter` writes the interchange format incrementally: the
+sidecar first (``acquisition.status = "recording"``), CSV rows appended and
+flushed to disk (``fsync``) every ``flush_s`` seconds, the sidecar rewritten
+atomically at each flush and finalised last. :func:`record` runs the loop that
+polls one or more :class:`~frictionfit.acquisition.stream.SensorStream` and
+merges their samples into rows on a common grid.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from frictionfit.acquisition.stream import SensorStream
+from frictionfit.errors import AcquisitionError
+from frictionfit.recording import Channel, Event, Recording
+
+__all__ = ["RecordingWriter", "record"]
+
+#: Data reaches the disk at least this often (s); the issue allows losing 1 s.
+FLUSH_S = 0.25
+
+
+class RecordingWriter:
+    """Append rows to ``<path>.csv`` and keep ``<path>.json`` current.
+
+    Parameters
+    ----------
+    path : str or Path
+        The stem (``.csv``/``.json`` are added).
+    channels : sequence of Channel
+        The columns after ``t``.
+    sample_rate_hz : float
+        Nominal rate (Hz) for the sidecar.
+    metadata : dict, optional
+        Free key/values for the sidecar's ``metadata``.
+    """
+
+    def __init__(self, path: str | Path, channels: Sequence[Channel], sample_rate_hz: float,
+                 metadata: dict[str, Any] | None = None) -> None:
+        stem = Path(path)
+        stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
+        self.csv_path, self.json_path = stem.with_suffix(".csv"), stem.with_suffix(".json")
+        self.channels = tuple(channels)
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.metadata = dict(metadata or {})
+        self.events: list[Event] = []
+        self.rows_written = 0
+        self._lines: list[str] = []
+        self._lock = threading.Lock()
+        self._csv = None
+
+    def start(self) -> None:
+        """Write the sidecar, then the CSV header; both reach the disk."""
+        self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+        self._write_sidecar({"status": "recording"})
+        self._csv = open(self.csv_path, "w", encoding="ascii")  # noqa: SIM115 (kept open)
+        self._csv.write(",".join(["t", *(c.name for c in self.channels)]) + "\n")
+        self._sync()
+
+    def append(self, k: np.ndarray, values: np.ndarray) -> None:
+        """Queue rows: grid indices ``k`` (n,) (t = k / rate) and values (n, n_channels)."""
+        t = np.asarray(k) / self.sample_rate_hz
+        lines = [f"{ti:.6f}," + ",".join(f"{v:.7g}" for v in row)
+                 for ti, row in zip(t, np.asarray(values), strict=True)]
+        with self._lock:
+            self._lines += lines
+
+    def add_event(self, event: Event) -> None:
+        """Record a command (e.g. ``Event(t, "move", "p2")``); it reaches the sidecar at the
+        next flush."""
+        with self._lock:
+            self.events.append(event)
+
+    def write_rows(self) -> None:
+        """Append the queued rows to the CSV and push them to the disk (fsync)."""
+        if self._csv is None:
+            raise AcquisitionError(f"{self.csv_path}: start() the writer before writing rows")
+        with self._lock:
+            lines, self._lines = self._lines, []
+        if lines:
+            self._csv.write("\n".join(lines) + "\n")
+            self.rows_written += len(lines)
+        self._sync()
+
+    def flush(self, acquisition: dict[str, Any]) -> None:
+        """Write the queued rows, then rewrite the sidecar with ``acquisition``."""
+        self.write_rows()
+        self._write_sidecar(acquisition)
+
+    def close(self, acquisition: dict[str, Any]) -> None:
+        """Last flush with the final ``acquisition``; the CSV is closed."""
+        self.flush(acquisition)
+        if self._csv is not None:
+            self._csv.close()
+            self._csv = None
+
+    def _sync(self) -> None:
+        assert self._csv is not None
+        self._csv.flush()
+        os.fsync(self._csv.fileno())
+
+    def _write_sidecar(self, acquisition: dict[str, Any]) -> None:
+        empty = Recording(np.empty(0), np.empty((0, len(self.channels))), self.sample_rate_hz,
+                          self.channels, events=tuple(self.events), metadata=self.metadata,
+                          extra={"acquisition": acquisition})
+        tmp = self.json_path.with_suffix(".json.tmp")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(empty.sidecar(), fh, indent=1)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, self.json_path)
+
+
+class _Merger:
+    """Rows on the common grid from several sensors; a missing sensor sample is NaN."""
+
+    def __init__(self, widths: Sequence[int]) -> None:
+        self.offsets = np.cumsum([0, *widths])
+        self.rows: dict[int, np.ndarray] = {}
+
+    def add(self, i: int, ks: np.ndarray, values: np.ndarray) -> None:
+        lo, hi = self.offsets[i], self.offsets[i + 1]
+        for k, v in zip(ks.tolist(), values, strict=True):
+            row = self.rows.get(k)
+            if row is None:
+                row = self.rows[k] = np.full(self.offsets[-1], np.nan)
+            row[lo:hi] = v
+
+    def ready(self, horizon: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rows with ``k < horizon``, in order, removed from the merger."""
+        ks = sorted(k for k in self.rows if k < horizon)
+        values = np.array([self.rows.pop(k) for k in ks]).reshape(len(ks), self.offsets[-1])
+        return np.asarray(ks, dtype=np.int64), values
+
+
+def _summary(streams: Sequence[SensorStream], writer: RecordingWriter, status: str,
+             started: float) -> dict[str, Any]:
+    parts = [s.summary() for s in streams]
+    total = {key: sum(p[key] for p in parts)
+             for key in ("frames_valid", "frames_corrupted", "samples_lost")}
+    span = max((p["frames_valid"] / p["rate_hz_achieved"] for p in parts
+                if p["rate_hz_achieved"]), default=0.0)
+    serials = [p["sensor_serial"] for p in parts]
+    return {
+        "status": status,
+        "started_unix_s": round(started, 3),
+        "rows": writer.rows_written,
+        **total,
+        "rate_hz_achieved": round(writer.rows_written / span, 3) if span else 0.0,
+        "sensor_serial": serials[0] if len(serials) == 1 else serials,
+        "gaps": [dict(g, sensor=p["name"]) for p in parts for g in p["gaps"]],
+        "sensors": [{k: v for k, v in p.items() if k != "gaps"} for p in parts],
+    }
+
+
+def record(
+    streams: Sequence[SensorStream],
+    out: str | Path,
+    *,
+    duration_s: float | None,
+    stop: threading.Event | None = None,
+    metadata: dict[str, Any] | None = None,
+    on_tick: Callable[[float, RecordingWriter], None] | None = None,
+    on_progress: Callable[[dict[str, Any]], None] | None = None,
+    flush_s: float = FLUSH_S,
+) -> dict[str, Any]:
+    """Record connected streams into ``out`` (.csv + .json) until ``duration_s`` or ``stop``.
+
+    Parameters
+    ----------
+    streams : sequence of SensorStream
+        Connected (``connect()`` done); all at the same rate.
+    out : path
+        The recording's stem.
+    duration_s : float or None
+        Seconds of host time to record; None runs until ``stop`` is set.
+    stop : threading.Event, optional
+        Set it (e.g. from a SIGINT/SIGTERM handler) to end cleanly.
+    on_tick : callable, optional
+        Called as ``on_tick(t, writer)`` every loop (about 100 Hz) with the recording
+        time ``t`` in s; the rubbing protocol sends its commands from here.
+    on_progress : callable, optional
+        Called after every flush with the current ``acquisition`` summary.
+
+    Returns
+    -------
+    dict
+        The final ``acquisition`` object, as written to the sidecar.
+    """
+    stop = stop or threading.Event()
+    rates = {s.rate_hz for s in streams}
+    if len(rates) != 1:
+        raise AcquisitionError(f"all sensors must run at one rate, got {sorted(rates)} Hz")
+    rate = rates.pop()
+    for s in streams:
+        s.wait_first_frame()
+    t0 = min(s.first_frame_time for s in streams)
+    writer = RecordingWriter(out, [c for s in streams for c in s.channels], rate,
+                             {**(metadata or {}), "ports": [s.url for s in streams]})
+    merger = _Merger([len(s.channels) for s in streams])
+    started = time.time()
+    writer.start()
+    last_flush = time.monotonic()
+    status = "interrupted"
+    try:
+        while not stop.is_set():
+            for i, s in enumerate(streams):
+                merger.add(i, *s.poll(t0))
+            live = [s.last_k for s in streams if s.connected and s.last_k is not None]
+            writer.append(*merger.ready(min(live) + 1 if live else np.inf))
+            now = time.monotonic()
+            if on_tick is not None:
+                on_tick(now - t0, writer)
+            if now - last_flush >= flush_s:
+                writer.flush(_summary(streams, writer, "recording", started))
+                last_flush = now
+                if on_progress is not None:
+                    on_progress(_summary(streams, writer, "recording", started))
+            if duration_s is not None and now - t0 >= duration_s:
+                status = "complete"
+                break
+            time.sleep(0.005)
+    finally:
+        for i, s in enumerate(streams):
+            s.close()
+            merger.add(i, *s.poll(t0))
+        writer.append(*merger.ready(np.inf))
+        writer.write_rows()
+        summary = _summary(streams, writer, status, started)
+        writer.close(summary)
+    return summary

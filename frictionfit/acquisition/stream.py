@@ -1,0 +1,251 @@
+"""One sensor as a stream of numbered samples that survives a pulled cable.
+
+A :class:`SensorStream` owns an :class:`~frictionfit.acquisition.sensor.OptoForceSensor`,
+turns its frames into samples on the recording's grid (sample ``k`` is at
+``k / rate_hz`` s), converts counts to newtons, and when the link dies keeps
+trying to open the port again; every hole in the grid is kept as a :class:`Gap`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from frictionfit.acquisition.frames import DataFrame, axis_names
+from frictionfit.acquisition.sensor import OptoForceSensor
+from frictionfit.errors import AcquisitionError
+from frictionfit.recording import Channel
+
+__all__ = ["Gap", "SensorStream"]
+
+#: At most this many gaps are listed per sensor; the rest are only counted.
+MAX_GAPS_LISTED = 1000
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Missing samples: the first one's time ``t`` (s), how many, and why."""
+
+    t: float
+    samples: int
+    cause: str
+
+    def to_json(self) -> dict[str, object]:
+        return {"t": round(self.t, 6), "samples": self.samples, "cause": self.cause}
+
+
+class SensorStream:
+    """A sensor's samples as ``(k, values)`` arrays, with reconnection and damage counts.
+
+    Parameters
+    ----------
+    url : str
+        The port, as :func:`serial.serial_for_url` takes it.
+    name : str
+        Prefix of the channel names (``<name>_x``, ``<name>_y``, ...).
+    rate_hz : float
+        Nominal rate, one of the DAQ's (1000, 333, 100, 30, 10 Hz).
+    filter_code, zero :
+        Passed to :meth:`OptoForceSensor.configure`.
+    sensitivity : path, optional
+        JSON sensitivity file (counts per N by serial number); raw counts without it.
+    retry_s : float
+        Seconds between attempts to reopen a lost port.
+    """
+
+    def __init__(self, url: str, name: str, rate_hz: float, *, filter_code: int = 0,
+                 zero: bool = False, sensitivity: str | Path | None = None,
+                 retry_s: float = 0.25, clock: Callable[[], float] = time.monotonic) -> None:
+        self.url, self.name, self.rate_hz = url, name, float(rate_hz)
+        self.filter_code, self.zero, self.sensitivity = filter_code, zero, sensitivity
+        self.retry_s, self.clock = retry_s, clock
+        self.sensor: OptoForceSensor | None = None
+        self.serial_number: str | None = None
+        self.scale: np.ndarray | None = None
+        self.channels: tuple[Channel, ...] = ()
+        self.gaps: list[Gap] = []
+        self.gaps_unlisted = 0
+        self.frames_received = 0
+        self.frames_flagged = 0
+        self.frames_overloaded = 0
+        self.samples_lost = 0
+        self.reconnects = 0
+        self.reconnect_failures = 0
+        self._closed = False
+        self.first_k: int | None = None
+        self.last_k: int | None = None
+        self._done = {"corrupted": 0, "discarded": 0, "overflow": 0}
+        self._pending: list[DataFrame] = []
+        self._down_since: float | None = None
+        self._down_reason = ""
+        self._last_try = -math.inf
+        self._new_link = True
+
+    # -- the link -------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the port, ask the serial number, configure and start reading."""
+        sensor = OptoForceSensor(self.url)
+        sensor.open()
+        try:
+            serial_number = sensor.query_serial()
+            sensor.configure(self.rate_hz, self.filter_code, self.zero)
+        except AcquisitionError:
+            sensor.close()
+            raise
+        if self.serial_number is not None and serial_number != self.serial_number:
+            sensor.close()
+            raise AcquisitionError(f"{self.url}: sensor {serial_number!r} answered where "
+                                   f"{self.serial_number!r} was recording")
+        self.serial_number = serial_number
+        sensor.start()
+        self.sensor, self._new_link, self._down_since = sensor, True, None
+
+    def wait_first_frame(self, timeout_s: float = 1.0) -> None:
+        """Block until the first frame arrives; then the channels are known."""
+        assert self.sensor is not None, "connect() first"
+        deadline = self.clock() + timeout_s
+        while not self._pending and self.clock() < deadline:
+            self._pending = self.sensor.frames()
+            time.sleep(0.002)
+        if not self._pending:
+            raise AcquisitionError(f"{self.url}: configured, but no data frame within "
+                                   f"{timeout_s} s")
+        n = len(self._pending[0].counts)
+        per_unit = self.sensor.counts_per_unit(self.sensitivity, n)
+        self.scale = None if per_unit is None else 1.0 / np.asarray(per_unit)
+        axes = axis_names(n)
+        units = ["counts"] * n if per_unit is None else [
+            "N m" if a.startswith("t") else "N" for a in axes]
+        self.channels = tuple(Channel(f"{self.name}_{a}", u) for a, u in zip(axes, units,
+                                                                             strict=True))
+
+    @property
+    def first_frame_time(self) -> float | None:
+        return None if self.sensor is None else self.sensor.first_frame_time
+
+    @property
+    def connected(self) -> bool:
+        return self._down_since is None
+
+    def _retire(self) -> None:
+        """Keep the counts of a link that ended, and close it."""
+        sensor = self.sensor
+        if sensor is None:
+            return
+        sensor.close()
+        self._done["corrupted"] += sensor.parser.frames_corrupted
+        self._done["discarded"] += sensor.parser.bytes_discarded
+        self._done["overflow"] += sensor.frames_overflow
+        self.sensor = None
+
+    def _check_link(self) -> None:
+        sensor = self.sensor
+        if sensor is not None and not sensor.alive and sensor.error is not None:
+            self._down_reason = sensor.error
+            self._down_since = self.clock()
+            self._retire()
+        if self.sensor is None and not self._closed and (
+                self.clock() - self._last_try >= self.retry_s):
+            self._last_try = self.clock()
+            try:
+                self.connect()
+                self.reconnects += 1
+            except AcquisitionError:
+                self.reconnect_failures += 1
+
+    # -- samples -----------------------------------------------------------------
+    def _gap(self, k: int, n: int, cause: str) -> None:
+        self.samples_lost += n
+        if len(self.gaps) < MAX_GAPS_LISTED:
+            self.gaps.append(Gap(k / self.rate_hz, n, cause))
+        else:
+            self.gaps_unlisted += 1
+
+    def _start_index(self, t0: float) -> int:
+        arrival = self.first_frame_time
+        k = max(round((arrival - t0) * self.rate_hz), 0) if arrival is not None else 0
+        if self.last_k is None:
+            return k
+        k = max(k, self.last_k + 1)
+        if k > self.last_k + 1:
+            self._gap(self.last_k + 1, k - self.last_k - 1,
+                      f"link lost ({self._down_reason}); reconnected")
+        return k
+
+    def poll(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """New samples: indices ``k`` (n,) on the grid started at host time ``t0``, values (n, c).
+
+        Values are in the channels' units; frames whose status flags a DAQ or sensor
+        error become NaN rows (counted in ``frames_flagged``).
+        """
+        self._check_link()
+        frames = self._pending + (self.sensor.frames() if self.sensor is not None else [])
+        self._pending = []
+        n_chan = len(self.channels)
+        ks = np.empty(len(frames), dtype=np.int64)
+        values = np.empty((len(frames), n_chan))
+        for i, f in enumerate(frames):
+            if self._new_link:
+                k = self._start_index(t0)
+                self._new_link = False
+            else:
+                k = self.last_k + 1 + f.lost_before
+                if f.lost_before:
+                    self._gap(self.last_k + 1, f.lost_before, "counter gap (corrupted or "
+                              "dropped frames)")
+            ks[i] = self.last_k = k
+            if self.first_k is None:
+                self.first_k = k
+            values[i] = f.counts if f.valid else np.nan
+            self.frames_flagged += not f.valid
+            self.frames_overloaded += bool(f.overloaded)
+        if self.scale is not None:
+            values *= self.scale
+        self.frames_received += len(frames)
+        return ks, values
+
+    def close(self) -> None:
+        """Stop the DAQ streaming (reading until it acknowledges) and close the port.
+
+        Frames that arrived before the acknowledge stay pending for a last :meth:`poll`.
+        """
+        self._closed = True
+        if self.sensor is not None:
+            self.sensor.stop(self.filter_code)
+            self._pending += self.sensor.frames()
+        self._retire()
+
+    # -- report ----------------------------------------------------------------
+    @property
+    def frames_corrupted(self) -> int:
+        live = self.sensor.parser.frames_corrupted if self.sensor is not None else 0
+        return self._done["corrupted"] + live
+
+    def summary(self) -> dict[str, object]:
+        """This sensor's part of the sidecar's ``acquisition`` object."""
+        live = self.sensor
+        span = (self.last_k - self.first_k + 1) / self.rate_hz if self.first_k is not None else 0.0
+        return {
+            "name": self.name,
+            "port": self.url,
+            "sensor_serial": self.serial_number,
+            "frames_valid": self.frames_received,
+            "frames_corrupted": self.frames_corrupted,
+            "frames_flagged": self.frames_flagged,
+            "frames_overloaded": self.frames_overloaded,
+            "samples_lost": self.samples_lost,
+            "bytes_discarded": self._done["discarded"] + (
+                live.parser.bytes_discarded if live is not None else 0),
+            "queue_overflow": self._done["overflow"] + (
+                live.frames_overflow if live is not None else 0),
+            "reconnects": self.reconnects,
+            "connected": self.connected,
+            "rate_hz_achieved": round(self.frames_received / span, 3) if span else 0.0,
+            "gaps": [g.to_json() for g in self.gaps],
+            "gaps_unlisted": self.gaps_unlisted,
+        }

@@ -1,0 +1,180 @@
+"""The recorder: every valid frame kept, damage counted exactly, crash- and cable-safe.
+
+A fake OptoForce DAQ on a pty (tests/fake_optoforce.py) streams at 1 kHz with frames
+corrupted on purpose and garbage between frames.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from fake_optoforce import FakeOptoForce
+from typer.testing import CliRunner
+
+from frictionfit.acquisition.recorder import RecordingWriter, record
+from frictionfit.acquisition.stream import SensorStream
+from frictionfit.cli import app
+from frictionfit.recording import Channel, Event, read_recording
+
+CLI = [sys.executable, "-c", "import sys; from frictionfit.cli import main; main()"]
+
+
+def _acquire_exactly(tmp_path, seconds):
+    out = tmp_path / "rec"
+    with FakeOptoForce(tmp_path / "tty", corrupt_every=97, garbage_every=31) as fake:
+        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--duration", str(seconds), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(out, on_error="flag")
+    acq = rec.extra["acquisition"]
+    assert fake.frames_corrupted >= seconds * 1000 // 97 - 2
+    # every valid frame is in the file, and the damage is reported exactly
+    assert rec.n_samples == fake.frames_sent - fake.frames_corrupted
+    assert acq["frames_corrupted"] == fake.frames_corrupted
+    assert acq["frames_valid"] == rec.n_samples == acq["rows"]
+    assert acq["samples_lost"] == fake.frames_corrupted == len(acq["gaps"])
+    assert f"corrupted {fake.frames_corrupted}," in result.output
+    assert acq["status"] == "complete" and acq["sensor_serial"] == "ISE0A129"
+    assert [p.kind for p in rec.problems] == ["gap"]
+    assert rec.channel_names == ("s1_x", "s1_y", "s1_z")
+    return acq, fake
+
+
+def test_acquire_keeps_every_valid_frame(tmp_path):
+    acq, _ = _acquire_exactly(tmp_path, 5)
+    assert 950 < acq["rate_hz_achieved"] <= 1000
+
+
+@pytest.mark.slow
+def test_acquire_60_s_keeps_every_valid_frame(tmp_path):
+    acq, fake = _acquire_exactly(tmp_path, 60)
+    print(f"60 s: sent {fake.frames_sent}, corrupted {fake.frames_corrupted}, "
+          f"rate achieved {acq['rate_hz_achieved']} Hz")
+
+
+def test_writer_sidecar_first_and_rows_readable_before_close(tmp_path):
+    writer = RecordingWriter(tmp_path / "w", [Channel("a_x", "N")], 1000.0, {"label": "x"})
+    writer.start()
+    assert json.loads((tmp_path / "w.json").read_text())["acquisition"] == {
+        "status": "recording"}
+    writer.append(np.arange(5), np.arange(5.0)[:, None] / 3)
+    writer.add_event(Event(0.002, "move", "p2"))
+    writer.flush({"status": "recording", "rows": 5})
+    rec = read_recording(tmp_path / "w")  # readable while still open
+    assert rec.n_samples == 5 and rec.events == (Event(0.002, "move", "p2"),)
+    np.testing.assert_allclose(rec.channel("a_x"), np.arange(5) / 3, rtol=1e-6)
+    writer.close({"status": "complete"})
+    assert read_recording(tmp_path / "w").extra["acquisition"]["status"] == "complete"
+
+
+def test_pulled_cable_reconnects_with_the_gap_marked(tmp_path):
+    with FakeOptoForce(tmp_path / "tty") as fake:
+        stream = SensorStream(str(tmp_path / "tty"), "thumb", 1000)
+        stream.connect()
+        timer = threading.Timer(0.8, fake.disconnect)
+        timer2 = threading.Timer(1.4, fake.reconnect)
+        timer.start()
+        timer2.start()
+        acq = record([stream], tmp_path / "rec", duration_s=2.5)
+        timer.join()
+        timer2.join()
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    links = [g for g in acq["gaps"] if g["cause"].startswith("link lost")]
+    assert len(links) == 1 and acq["sensors"][0]["reconnects"] == 1
+    assert 0.7 < links[0]["t"] < 0.9 and 500 < links[0]["samples"] < 1300
+    dt = np.diff(rec.t)
+    assert np.isclose(dt.max(), (links[0]["samples"] + 1) / 1000)  # the hole is in t
+    assert rec.t[-1] > 2.0 and [p.kind for p in rec.problems] == ["gap"]
+
+
+def test_two_ports_share_one_grid(tmp_path):
+    with FakeOptoForce(tmp_path / "a", seed=1) as fa, FakeOptoForce(tmp_path / "b", seed=2):
+        result = CliRunner().invoke(app, [
+            "acquire", "--port", str(tmp_path / "a"), "--port", str(tmp_path / "b"),
+            "--name", "thumb", "--name", "index", "--duration", "1", "--out",
+            str(tmp_path / "rec"), "--quiet"])
+        assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    assert rec.channel_names == ("thumb_x", "thumb_y", "thumb_z", "index_x", "index_y", "index_z")
+    acq = rec.extra["acquisition"]
+    assert acq["sensor_serial"] == ["ISE0A129", "ISE0A129"]
+    assert acq["sensors"][0]["frames_valid"] == fa.frames_sent
+    # the second sensor starts (and stops) some ms after the first: NaN at the edges only
+    full = np.isfinite(rec.samples).all(axis=1)
+    assert full.mean() > 0.95 and full[100:-100].all()
+
+
+def test_sensitivity_gives_newtons(tmp_path):
+    sens = tmp_path / "sens.json"
+    sens.write_text(json.dumps({"ISE0A129": [400.9]}))
+    with FakeOptoForce(tmp_path / "tty", source=lambda k: (401, -802, 16037)):
+        result = CliRunner().invoke(app, [
+            "acquire", "--port", str(tmp_path / "tty"), "--duration", "0.3", "--out",
+            str(tmp_path / "rec"), "--sensitivity", str(sens), "--quiet"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    assert {c.unit for c in rec.channels} == {"N"}
+    np.testing.assert_allclose(rec.samples[0], [401 / 400.9, -802 / 400.9, 16037 / 400.9],
+                               rtol=1e-6)
+
+
+def test_acquire_bad_port_exits_in_words(tmp_path):
+    result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "none"),
+                                      "--duration", "1", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 1
+    assert "none: cannot open the port" in result.output
+
+
+def _wait_for_rows(csv, n, timeout=30):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if csv.exists() and csv.read_text().count("\n") > n:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"{csv} never reached {n} rows")
+
+
+def test_sigkill_loses_at_most_one_second(tmp_path):
+    out = tmp_path / "rec"
+    with FakeOptoForce(tmp_path / "tty", corrupt_every=200) as fake:
+        proc = subprocess.Popen([*CLI, "acquire", "--port", str(tmp_path / "tty"),
+                                 "--duration", "60", "--out", str(out), "--quiet"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            _wait_for_rows(out.with_suffix(".csv"), 1500)
+            time.sleep(0.2)  # just before the next flush: the worst moment to die
+        finally:
+            sent, corrupted = fake.frames_sent, fake.frames_corrupted
+            proc.send_signal(signal.SIGKILL)
+            proc.communicate(timeout=30)
+    info = CliRunner().invoke(app, ["info", str(out)])
+    assert info.exit_code == 0, info.output
+    rec = read_recording(out, on_error="flag")
+    missing = sent - corrupted - rec.n_samples
+    print(f"SIGKILL after {sent} frames sent: {missing} valid frames missing from the file")
+    assert 0 <= missing <= 1000
+    assert rec.extra["acquisition"]["status"] == "recording"  # never finalised: it crashed
+
+
+def test_sigterm_stops_cleanly(tmp_path):
+    out = tmp_path / "rec"
+    with FakeOptoForce(tmp_path / "tty") as fake:
+        proc = subprocess.Popen([*CLI, "acquire", "--port", str(tmp_path / "tty"),
+                                 "--out", str(out), "--quiet"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            _wait_for_rows(out.with_suffix(".csv"), 500)
+        finally:
+            os.kill(proc.pid, signal.SIGTERM)
+            stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0, stderr
+    rec = read_recording(out)
+    acq = rec.extra["acquisition"]
+    assert acq["status"] == "interrupted" and "interrupted" in stdout
+    assert rec.n_samples == fake.frames_sent  # the DAQ was stopped, every frame drained

@@ -1,0 +1,88 @@
+"""The OptoForce driver: handshake on loop:// and on a fake DAQ, sensitivities, errors."""
+
+import json
+import time
+
+import pytest
+from fake_optoforce import FakeOptoForce
+
+from frictionfit.acquisition.frames import ConfigAck, ConfigCommand, DataFrame, SerialReply
+from frictionfit.acquisition.sensor import OptoForceSensor, load_sensitivity
+from frictionfit.errors import AcquisitionError
+
+
+@pytest.fixture
+def loop():
+    sensor = OptoForceSensor("loop://")
+    sensor.open()
+    yield sensor
+    sensor.close()
+
+
+def test_configure_accepts_ack_between_data_frames(loop):
+    frames = [DataFrame(c, 0, (c, 0, 0)).encode() for c in range(3)]
+    loop.port.write(frames[0] + ConfigAck(0).encode() + frames[1] + frames[2])
+    assert loop.configure(1000, filter_code=1) == 9
+    assert loop.frames_before_config == 1
+    loop.start()
+    time.sleep(0.1)
+    assert [f.counter for f in loop.frames()] == [1, 2]  # those after the acknowledge
+
+
+def test_rejected_configuration_names_the_result(loop):
+    loop.port.write(ConfigAck(3).encode())
+    with pytest.raises(AcquisitionError, match=r"loop://: the DAQ rejected .* result 3"):
+        loop.configure(100)
+
+
+def test_missing_acknowledge_times_out_in_words(loop):
+    with pytest.raises(AcquisitionError, match="no configuration acknowledge within 0.5 s"):
+        loop.configure(100)
+
+
+def test_serial_number_found_among_data_frames(loop):
+    loop.port.write(DataFrame(1, 0, (0, 0, 0)).encode() + SerialReply("DSE0A125").encode())
+    assert loop.query_serial() == "DSE0A125"
+
+
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"rate_hz": 500}, "rate 500 Hz is not one the DAQ offers"),
+    ({"rate_hz": 1000, "filter_code": 9}, "filter code 9 unknown"),
+])
+def test_bad_settings_in_words(loop, kwargs, words):
+    with pytest.raises(AcquisitionError, match=words):
+        loop.configure(**kwargs)
+
+
+def test_unopenable_port_names_it(tmp_path):
+    with pytest.raises(AcquisitionError, match="nope: cannot open the port"):
+        OptoForceSensor(str(tmp_path / "nope")).open()
+
+
+def test_fake_daq_handshake_with_tare(tmp_path):
+    with FakeOptoForce(tmp_path / "tty", serial="ISE0A129") as fake:
+        sensor = OptoForceSensor(str(tmp_path / "tty"))
+        sensor.open()
+        try:
+            assert sensor.query_serial() == "ISE0A129"
+            sensor.configure(1000, filter_code=1, zero=True)
+            sensor.start()
+            time.sleep(0.2)
+            got = sensor.frames()
+        finally:
+            sensor.close()
+    # zeroing is 0 then 255 (reference section 6.3)
+    assert fake.configs == [ConfigCommand(1, 1, 0), ConfigCommand(1, 1, 255)]
+    assert len(got) > 50 and sum(f.lost_before for f in got) == 0
+
+
+def test_sensitivity_file(tmp_path):
+    path = tmp_path / "sens.json"
+    path.write_text(json.dumps({"ISE0A129": [400.9, 400.9, 400.9], "BAD": [1, -2, 3]}))
+    assert load_sensitivity(path, "ISE0A129") == (400.9, 400.9, 400.9)
+    with pytest.raises(AcquisitionError, match=r"no sensitivity for sensor 'X1'.*\['BAD'"):
+        load_sensitivity(path, "X1")
+    with pytest.raises(AcquisitionError, match="must be positive counts per unit"):
+        load_sensitivity(path, "BAD")
+    with pytest.raises(AcquisitionError, match="cannot read the sensitivity file"):
+        load_sensitivity(tmp_path / "missing.json", "ISE0A129")
