@@ -1,23 +1,41 @@
-"""Motions and phases of a rubbing measurement, from its ``move`` events.
+"""Motions and phases of a rubbing measurement: from ``move`` events, or from the force alone.
 
 A measurement is a series of motions; each starts ``pre_s`` before its ``move p2``
 command and ends ``pre_s`` before the next one. Samples are put back on the
 uniform ``1/sample_rate`` grid, with NaN where the data link dropped them, so
-fits see missing data as missing. Phase boundaries here come from the command
-times plus a nominal movement duration (``move_s``); detecting them from the
-force, and change detection when events are absent, are not implemented yet.
+fits see missing data as missing.
+
+Phase boundaries (movement start and stop) are found in the force. All channels
+are combined into one signal (their first principal component, after spikes are
+removed), and each boundary is placed by a least-squares change-point fit on a
+0.25-ms grid:
+
+- a movement *start* is where the signal leaves a linear baseline with a
+  polynomial onset ``c1 (t - t0)+ + c2 (t - t0)+^2 + c3 (t - t0)+^3``;
+- a movement *stop* is where the drop that the finger's deceleration causes in
+  the sliding force ends: a linear ramp of width ``w`` ending at ``t0`` on a
+  quadratic background.
+
+With events, each search starts at the command; without events (or with
+``use_events=False``), movements are found by change detection: bursts of fast
+force change, alternating in sign between out and back strokes, and the command
+time is taken as ``lag_s`` before the detected start.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d, median_filter
 
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Channel, Recording
 
-__all__ = ["Motion", "Phase", "moving_average", "regrid", "segment"]
+__all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
+           "segment"]
+
+_GRID_S = 0.25e-3  # resolution of the change-point grids, s
 
 
 @dataclass(frozen=True)
@@ -29,9 +47,29 @@ class Phase:
     stop_s: float
 
 
+@dataclass(frozen=True)
+class Movement:
+    """One finger movement: ``target`` ``"p2"`` (out) or ``"p1"`` (back), start/stop in s.
+
+    ``command`` is the ``move`` command time (s), or None where it was not in the events;
+    ``detected`` is False where the force did not show the boundaries and nominal
+    times (command + lag, + nominal duration) stand in.
+    """
+
+    target: str
+    start: float
+    stop: float
+    command: float | None = None
+    detected: bool = True
+
+
 @dataclass(frozen=True, eq=False)
 class Motion:
-    """One rubbing motion: uniform-grid samples (NaN where missing) and its command times (s)."""
+    """One rubbing motion: uniform-grid samples (NaN where missing) and its command times (s).
+
+    ``t0`` is the recording time (s) of the motion's first sample, so a phase boundary
+    ``b`` (s from motion start) is at ``t0 + b`` in the recording.
+    """
 
     recording: str
     index: int
@@ -43,6 +81,8 @@ class Motion:
     t_back: float
     phases: tuple[Phase, ...]
     metadata: dict
+    t0: float = 0.0
+    movements: tuple[Movement, ...] = field(default=())
 
 
 def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
@@ -69,6 +109,165 @@ def regrid(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return rec.t[0] + np.arange(n) / rec.sample_rate_hz, grid
 
 
+def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One signal from all channels (first principal component, N) and its validity mask.
+
+    Spikes (samples far from a 7-sample running median) and non-finite samples are
+    masked, then bridged linearly so the filters and the component see no holes.
+    """
+    x = np.array(grid, dtype=np.float64)
+    ok = np.isfinite(x)
+    idx = np.arange(x.shape[0])
+    for j in range(x.shape[1]):
+        if ok[:, j].sum() < 2:
+            x[:, j], ok[:, j] = 0.0, False
+            continue
+        x[:, j] = np.interp(idx, idx[ok[:, j]], x[ok[:, j], j])
+        resid = x[:, j] - median_filter(x[:, j], 7, mode="nearest")
+        spread = 1.4826 * np.median(np.abs(resid - np.median(resid)))
+        spike = np.abs(resid) > max(12 * spread, 0.05)
+        if spike.any():
+            ok[spike, j] = False
+            x[:, j] = np.interp(idx, idx[ok[:, j]], x[ok[:, j], j])
+    centred = x - np.median(x, axis=0)
+    _, _, vt = np.linalg.svd(centred[:: max(1, x.shape[0] // 4000)], full_matrices=False)
+    return centred @ vt[0], ok.all(axis=1)
+
+
+def _best(t: np.ndarray, y: np.ndarray, w: np.ndarray, designs: np.ndarray) -> int:
+    """Index of the design (G, n, p) whose weighted least-squares fit leaves the least RSS."""
+    xw = designs * w[None, :, None]
+    xtx = np.einsum("gnp,gnq->gpq", xw, designs) + 1e-12 * np.eye(designs.shape[2])
+    xty = np.einsum("gnp,n->gp", xw, y)
+    beta = np.linalg.solve(xtx, xty[..., None])[..., 0]
+    rss = np.einsum("n,n->", w * y, y) - np.einsum("gp,gp->g", beta, xty)
+    return int(np.argmin(rss))
+
+
+def _refine_start(s: np.ndarray, ok: np.ndarray, rate: float, lo: int, hi: int) -> float | None:
+    """Movement start (samples, fractional) in ``[lo, hi]``: baseline then polynomial onset."""
+    lo, hi = max(lo, 0), min(hi, s.size - 1)
+    if hi - lo < 30:
+        return None
+    base = np.median(s[max(lo - 20, 0):lo + 5])
+    dev = s[lo:hi] - base
+    swing = dev[np.argmax(np.abs(dev))]
+    over = np.flatnonzero(np.sign(swing) * dev > 0.2 * abs(swing))
+    if not over.size or abs(swing) < 1e-9:
+        return None
+    c = lo + int(over[0])
+    win = np.arange(c - int(0.06 * rate), c + 1)
+    win = win[win >= 0]
+    tt = (win - win[0]) / rate
+    t0s = np.arange(max(win[0] + 5, c - int(0.04 * rate)), c, _GRID_S * rate)
+    h = np.clip(tt[None, :] - (t0s[:, None] - win[0]) / rate, 0.0, None)
+    one = np.ones_like(h)
+    designs = np.stack([one, one * tt, h, h**2, h**3], axis=-1)
+    return float(t0s[_best(tt, s[win], ok[win].astype(float), designs)])
+
+
+def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign: float,
+                 span: tuple[float, float]) -> float | None:
+    """Movement stop (samples): end of the deceleration drop, searched ``span`` s after start."""
+    a, b = int(start + span[0] * rate), min(int(start + span[1] * rate), s.size - int(0.03 * rate))
+    if b - a < 10:
+        return None
+    k = int(0.008 * rate)
+    idx = np.arange(a, b)
+    before = sign * (s[idx] - s[idx - k])  # the drop: against the direction of the rise
+    after = np.abs(s[idx + 2 * k] - s[idx])
+    score = -before - 0.5 * after
+    # the deceleration ends the movement: the last strong drop, not the slip-weakening one
+    peaks = np.flatnonzero((score >= 0.4 * score.max())
+                           & (score == maximum_filter1d(score, 2 * k + 1, mode="nearest")))
+    c = int(idx[peaks[-1]]) if peaks.size else int(idx[np.argmax(score)])
+    win = np.arange(c - int(0.03 * rate), c + int(0.025 * rate))
+    tt = (win - win[0]) / rate
+    t0s = np.arange(c - int(0.01 * rate), c + int(0.01 * rate), _GRID_S * rate)
+    widths = np.arange(0.004, 0.022, 0.001)
+    cand = [(t0, wd) for t0 in t0s for wd in widths]
+    t0v = np.array([(c0 - win[0]) / rate for c0, _ in cand])
+    wv = np.array([wd for _, wd in cand])
+    ramp = np.clip((t0v[:, None] - tt[None, :]) / wv[:, None], 0.0, 1.0)
+    one = np.ones_like(ramp)
+    designs = np.stack([one, one * tt, one * tt**2, ramp], axis=-1)
+    return float(cand[_best(tt, s[win], ok[win].astype(float), designs)][0])
+
+
+def _bursts(s: np.ndarray, rate: float, min_gap_s: float = 0.4) -> list[tuple[int, float]]:
+    """Onsets (sample) and signs of bursts of fast change: the loading of each movement."""
+    k = int(0.01 * rate)
+    smooth = moving_average(s, 9)
+    d = np.zeros_like(s)
+    d[k:-k] = smooth[2 * k:] - smooth[:-2 * k]
+    level = np.quantile(np.abs(d), 0.999)
+    hot = np.flatnonzero(np.abs(d) > 0.2 * level) if level > 0 else np.array([], dtype=int)
+    out: list[tuple[int, float]] = []
+    for i in hot:
+        if not out or i - out[-1][0] > min_gap_s * rate:
+            out.append((int(i), float(np.sign(d[i]))))
+    return out
+
+
+def detect_movements(
+    rec: Recording,
+    *,
+    use_events: bool = True,
+    lag_s: float = 0.025,
+    move_s: float = 0.15,
+) -> list[Movement]:
+    """Find every finger movement's start and stop (s, recording time) in the force.
+
+    Parameters
+    ----------
+    rec : Recording
+        A rubbing measurement (any channels that see the tangential force).
+    use_events : bool, default True
+        Search after each ``move`` command; False (or no events) finds the movements
+        by change detection alone.
+    lag_s : float
+        Nominal motor latency (s): without events, the command time is taken as the
+        detected start minus ``lag_s``; with events, where the force shows nothing,
+        the start is taken as command + ``lag_s``.
+    move_s : float
+        Nominal movement duration (s): the stop where the force does not show it.
+
+    Returns
+    -------
+    list of Movement
+        In time order.
+    """
+    t, grid = regrid(rec)
+    rate = rec.sample_rate_hz
+    s, ok = _combined(grid)
+    cmds = [(e.t, e.target) for e in rec.events if e.kind == "move" and e.target in ("p1", "p2")]
+    found: list[tuple[str, float | None, float | None]] = []  # target, command, start (samples)
+    if use_events and cmds:
+        for t_cmd, target in sorted(cmds):
+            i = int(round((t_cmd - t[0]) * rate))
+            found.append((target, t_cmd, _refine_start(s, ok, rate, i, i + int(0.2 * rate))))
+    else:
+        bursts = _bursts(s, rate)
+        gap = np.median(np.diff([i for i, _ in bursts])) if len(bursts) > 1 else np.inf
+        # the recording starts just before the first out command (the lab protocol)
+        first = 0.0 if not bursts else bursts[0][1] if bursts[0][0] < 0.5 * gap else -bursts[0][1]
+        for i, sign in bursts:
+            start = _refine_start(s, ok, rate, i - int(0.08 * rate), i + int(0.1 * rate))
+            found.append(("p2" if sign == first else "p1", None, start))
+    out = []
+    for target, t_cmd, start in found:
+        detected = start is not None
+        if start is None:
+            start = (t_cmd + lag_s - t[0]) * rate
+        rise = np.sign(s[min(int(start) + int(0.05 * rate), s.size - 1)] - s[int(start)])
+        stop = _refine_stop(s, ok, rate, start, rise, (0.03, 0.25)) if detected else None
+        if stop is None:
+            stop, detected = start + move_s * rate, False
+        cmd = t_cmd if t_cmd is not None else t[0] + start / rate - lag_s
+        out.append(Movement(target, t[0] + start / rate, t[0] + stop / rate, cmd, detected))
+    return out
+
+
 def segment(
     rec: Recording,
     *,
@@ -76,50 +275,75 @@ def segment(
     filter_n: int | None = None,
     pre_s: float = 0.05,
     move_s: float = 0.15,
+    use_events: bool = True,
+    lag_s: float = 0.025,
 ) -> list[Motion]:
-    """Split a measurement into motions at its ``move p2`` commands.
+    """Split a measurement into motions and each motion into movement and relaxation phases.
 
     Parameters
     ----------
     rec : Recording
-        A measurement with ``move`` events (targets ``p2`` then ``p1``).
+        A measurement, with ``move`` events (targets ``p2`` then ``p1``) or without.
     drop_first : bool, default True
         Drop motion 0, the preparatory one.
     filter_n : int, optional
-        Moving-average length (the published pipeline uses 9).
+        Moving-average length (the published pipeline uses 9); boundaries are found
+        on the unfiltered data.
     pre_s : float
         Seconds kept before each out command (the baseline).
     move_s : float
-        Nominal movement duration (s) used for the phase boundaries.
+        Nominal movement duration (s), used where the force shows no boundary.
+    use_events : bool, default True
+        Use the ``move`` commands; False segments from the force alone (as when the
+        sidecar has no events).
+    lag_s : float
+        Nominal motor latency (s); see :func:`detect_movements`.
+
+    Returns
+    -------
+    list of Motion
+        ``phases`` hold the detected boundaries (s from the motion's start, ``t0``);
+        ``t_out``/``t_back`` the commands (estimated as start - ``lag_s`` without events).
+
+    Examples
+    --------
+    >>> from frictionfit.simulation.measurements import simulate_measurements
+    >>> rec, = simulate_measurements([(1, "paper-1", 1)], seed=0, pad_to=5)
+    >>> [m.index for m in segment(rec)]
+    [1, 2, 3, 4]
     """
-    outs = [e.t for e in rec.events if e.kind == "move" and e.target == "p2"]
-    backs = [e.t for e in rec.events if e.kind == "move" and e.target == "p1"]
+    has_events = any(e.kind == "move" and e.target == "p2" for e in rec.events)
+    moves = detect_movements(rec, use_events=use_events and has_events, lag_s=lag_s,
+                             move_s=move_s)
+    outs = [m for m in moves if m.target == "p2"]
     if not outs:
-        raise RecordingError("no 'move p2' events: cannot segment without motion commands",
-                             path=rec.name)
+        raise RecordingError("no 'move p2' events and no movements found in the force: "
+                             "cannot segment", path=rec.name)
     t, grid = regrid(rec)
     if filter_n:
         grid = moving_average(grid, filter_n)
-    period = float(np.median(np.diff(outs))) if len(outs) > 1 else float(t[-1] - outs[0] + pre_s)
-    n = int(round(period * rec.sample_rate_hz))
+    rate = rec.sample_rate_hz
+    cmds = [m.command for m in outs]
+    period = float(np.median(np.diff(cmds))) if len(cmds) > 1 else float(t[-1] - cmds[0] + pre_s)
+    n = int(round(period * rate))
     motions = []
-    for i, t_cmd in enumerate(outs):
-        if drop_first and i == 0:
-            continue
-        start = int(round((t_cmd - pre_s - t[0]) * rec.sample_rate_hz))
-        back = [b for b in backs if t_cmd < b < t_cmd + period]
-        if start < 0 or start + n > grid.shape[0] or not back:
-            continue  # a truncated last motion, or one without its back command
-        t_out, t_back = pre_s, back[0] - t_cmd + pre_s
+    for i, out in enumerate(outs):
+        start = int(round((out.command - pre_s - t[0]) * rate))
+        back = [m for m in moves if m.target == "p1" and out.command < m.command < out.command
+                + period]
+        if (drop_first and i == 0) or start < 0 or start + n > grid.shape[0] or not back:
+            continue  # the preparatory motion, a truncated one, or one without its back stroke
+        t0 = t[0] + start / rate
+        ret = back[0]
         phases = (
-            Phase("move_out", t_out, t_out + move_s),
-            Phase("relax_out", t_out + move_s, t_back),
-            Phase("move_back", t_back, t_back + move_s),
-            Phase("relax_back", t_back + move_s, n / rec.sample_rate_hz),
+            Phase("move_out", out.start - t0, out.stop - t0),
+            Phase("relax_out", out.stop - t0, ret.start - t0),
+            Phase("move_back", ret.start - t0, ret.stop - t0),
+            Phase("relax_back", ret.stop - t0, n / rate),
         )
         motions.append(Motion(
-            rec.name, i, np.arange(n) / rec.sample_rate_hz, grid[start:start + n],
-            rec.channels, rec.sample_rate_hz, t_out, t_back, phases,
-            {**rec.metadata, "motion": i},
+            rec.name, i, np.arange(n) / rate, grid[start:start + n], rec.channels, rate,
+            out.command - t0, ret.command - t0, phases, {**rec.metadata, "motion": i},
+            t0=t0, movements=(out, ret),
         ))
     return motions

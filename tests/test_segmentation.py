@@ -44,7 +44,7 @@ def test_moving_average_ignores_nan():
 
 
 def test_no_events_is_a_named_error():
-    rec = Recording.from_arrays(np.zeros((10, 1)) + np.arange(10)[:, None], 1000.0, ["x"],
+    rec = Recording.from_arrays(np.zeros((100, 1)), 1000.0, ["x"],
                                 name="s1_x_01")
-    with pytest.raises(RecordingError, match="s1_x_01: no 'move p2' events"):
+    with pytest.raises(RecordingError, match="s1_x_01: no 'move p2' events and no movements"):
         segment(rec)
