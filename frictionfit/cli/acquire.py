@@ -16,12 +16,16 @@ def _open_streams(ports: list[str], names: list[str] | None, rate: float, filter
     if len(names) != len(ports):
         typer.echo(f"error: {len(names)} --name for {len(ports)} ports", err=True)
         raise typer.Exit(2)
-    streams = []
-    for port, name in zip(ports, names, strict=True):
-        stream = SensorStream(port, name, rate, filter_code=filter_code, zero=zero,
-                              sensitivity=sensitivity)
-        stream.connect()
-        streams.append(stream)
+    streams = [SensorStream(port, name, rate, filter_code=filter_code, zero=zero,
+                            sensitivity=sensitivity) for port, name in zip(ports, names,
+                                                                           strict=True)]
+    try:
+        for stream in streams:
+            stream.connect()
+    except Exception:
+        for stream in streams:
+            stream.close()
+        raise
     return streams
 
 
@@ -103,6 +107,63 @@ def acquire(
         raise typer.Exit(1) from None
 
 
-def rub() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+def _actuator(spec: str, p1: float, servo_id: int, baud: int) -> Any:
+    from frictionfit.acquisition.actuator import DynamixelActuator, SimulatedGripper
+
+    if spec == "sim":
+        return SimulatedGripper(p1)
+    servo = DynamixelActuator(spec, servo_id, baudrate=baud)
+    try:
+        servo.ping()
+        servo.enable()
+    except Exception:
+        servo.close()
+        raise
+    return servo
+
+
+def rub(
+    sensor: list[str] = typer.Option(..., "--sensor", help=_PORT_HELP),
+    actuator: str = typer.Option(..., help="Dynamixel servo port, or 'sim' for a simulated "
+                                 "gripper."),
+    p1: float = typer.Option(..., help="Closed (start) position, actuator units (counts)."),
+    p2: float = typer.Option(..., help="Rubbing position, actuator units (counts)."),
+    out: Path = typer.Option(..., "--out", help="Stem of the recording: NAME.csv + NAME.json."),
+    motions: int = typer.Option(5, help="Number of rubbing motions (p1 -> p2 -> p1)."),
+    dwell: float = typer.Option(1.0, help="Seconds between commands."),
+    label: str = typer.Option(None, help="Material label for the sidecar's metadata."),
+    rate: float = typer.Option(1000.0, help="Sample rate in Hz: 1000, 333, 100, 30 or 10."),
+    name: list[str] = typer.Option(None, "--name", help=_NAME_HELP),
+    sensitivity: Path = typer.Option(None, help=_SENS_HELP),
+    servo_id: int = typer.Option(1, help="Dynamixel ID."),
+    baud: int = typer.Option(57_600, help="Dynamixel baud rate."),
+    quiet: bool = typer.Option(False, help="No live progress line."),
+) -> None:
+    """Run the rubbing protocol while recording the forces, ready for ``frictionfit fit``.
+
+    The finger goes to p1, then ``--motions`` times to p2 and back, a command every
+    ``--dwell`` seconds from t = 0.05 s; each command is a ``move`` event in the sidecar.
+    """
+    from frictionfit.acquisition.protocol import ProtocolRunner, RubbingProtocol
+    from frictionfit.errors import AcquisitionError
+
+    try:
+        protocol = RubbingProtocol(p1, p2, motions, dwell)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    try:
+        drive = _actuator(actuator, p1, servo_id, baud)
+        try:
+            drive.move_to(p1)
+            streams = _open_streams(sensor, name, rate, 0, False, sensitivity)
+            meta = {"protocol": {"p1": p1, "p2": p2, "motions": motions, "dwell_s": dwell,
+                                 "actuator": actuator}}
+            if label is not None:
+                meta["label"] = label
+            _run(streams, out, protocol.duration_s, quiet, meta, ProtocolRunner(protocol, drive))
+        finally:
+            drive.close()
+    except AcquisitionError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None

@@ -1,0 +1,125 @@
+"""Dynamixel Protocol 2.0 codec against the reference's packets; actuators; the protocol."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from frictionfit.acquisition.actuator import DynamixelActuator, SimulatedGripper
+from frictionfit.acquisition.dynamixel import (
+    PING,
+    STATUS,
+    WRITE,
+    Packet,
+    PacketParser,
+    crc16,
+)
+from frictionfit.acquisition.protocol import RubbingProtocol
+from frictionfit.errors import AcquisitionError
+
+# reference section 4 (e-Manual examples) and section 9 (recipes)
+REFERENCE_PACKETS = [
+    "FF FF FD 00 01 03 00 01 19 4E",
+    "FF FF FD 00 FE 03 00 01 31 42",
+    "FF FF FD 00 01 07 00 02 84 00 04 00 1D 15",
+    "FF FF FD 00 01 08 00 55 00 A6 00 00 00 8C C0",
+    "FF FF FD 00 01 09 00 03 74 00 00 02 00 00 CA 89",
+    "FF FF FD 00 01 04 00 55 00 A1 0C",
+    "FF FF FD 00 01 03 00 08 2F 4E",
+    "FF FF FD 00 01 07 00 02 00 00 02 00 21 51",
+    "FF FF FD 00 01 06 00 55 00 FC 03 C3 53",
+    "FF FF FD 00 01 06 00 03 40 00 00 DE E6",
+    "FF FF FD 00 01 06 00 03 0B 00 03 48 E3",
+    "FF FF FD 00 01 07 00 03 66 00 64 00 4E 7D",
+    "FF FF FD 00 01 09 00 03 74 00 00 08 00 00 42 89",
+    "FF FF FD 00 01 08 00 55 00 00 08 00 00 1C 38",
+    "FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44",
+    "FF FF FD 00 01 05 00 55 00 01 56 A1",
+    "FF FF FD 00 01 0A 00 03 74 00 FF FF FD FD FF 23 E5",  # byte stuffing
+    "FF FF FD 00 01 04 00 55 04 BA 8C",
+    "FF FF FD 00 01 04 00 55 80 A2 8F",
+]
+
+
+def test_crc_check_value():
+    assert crc16(b"123456789") == 0xFEE8
+
+
+@pytest.mark.parametrize("hexbytes", REFERENCE_PACKETS)
+def test_reference_packets_decode_and_reencode(hexbytes):
+    raw = bytes.fromhex(hexbytes)
+    (pkt,) = PacketParser().feed(b"\x00\xff" + raw)
+    assert pkt.encode() == raw
+
+
+def test_packets_by_meaning():
+    assert Packet(1, WRITE, struct.pack("<Hi", 116, 2048)).encode() == bytes.fromhex(
+        "FF FF FD 00 01 09 00 03 74 00 00 08 00 00 42 89")
+    goal = Packet(1, WRITE, struct.pack("<Hi", 116, -131073))
+    assert goal.encode() == bytes.fromhex("FF FF FD 00 01 0A 00 03 74 00 FF FF FD FD FF 23 E5")
+    (back,) = PacketParser().feed(goal.encode())
+    assert struct.unpack("<Hi", back.params) == (116, -131073)
+    (status,) = PacketParser().feed(bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
+    assert (status.error, struct.unpack("<i", status.data)[0]) == (0, -500)
+
+
+def test_bad_crc_is_counted_and_skipped():
+    bad = bytearray(bytes.fromhex("FF FF FD 00 01 04 00 55 00 A1 0C"))
+    bad[-1] ^= 1
+    parser = PacketParser()
+    good = Packet(1, PING).encode()
+    assert parser.feed(bytes(bad) + good) == [Packet(1, PING)] and parser.crc_errors == 1
+
+
+@pytest.fixture
+def servo():
+    actuator = DynamixelActuator("loop://", 1)
+    yield actuator
+    actuator.close()
+
+
+def _reply(servo, error=0, data=b""):
+    servo.port.write(Packet(1, STATUS, bytes([error]) + data).encode())
+
+
+def test_dynamixel_on_loop(servo):
+    _reply(servo, data=struct.pack("<HB", 1020, 46))
+    assert servo.ping() == 1020
+    _reply(servo)
+    servo.move_to(2048)
+    servo.port.write(bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
+    assert servo.position() == -500.0
+
+
+@pytest.mark.parametrize(("hexbytes", "words"), [
+    ("FF FF FD 00 01 04 00 55 04 BA 8C", r"error 4 \(data range error\)"),
+    ("FF FF FD 00 01 04 00 55 80 A2 8F", "alert: hardware error latched"),
+])
+def test_dynamixel_errors_in_words(servo, hexbytes, words):
+    servo.port.write(bytes.fromhex(hexbytes))
+    with pytest.raises(AcquisitionError, match=words):
+        servo.move_to(100)
+
+
+def test_dynamixel_limits_and_silence(servo):
+    with pytest.raises(AcquisitionError, match="goal position 5000 is outside .* 0..4095"):
+        servo.move_to(5000)
+    with pytest.raises(AcquisitionError, match="no status from servo 1 for READ position"):
+        servo.position()
+
+
+def test_simulated_gripper_moves_like_the_model_drive():
+    times = iter([0.0, 1.0, 3.0])
+    g = SimulatedGripper(0.0, move_s=0.1, latency_s=0.02, clock=lambda: next(times))
+    g.move_to(5.0)   # at t = 1.0
+    g.move_to(-1.0)  # at t = 3.0
+    x = g.trajectory(np.array([0.5, 1.02, 1.07, 1.2, 3.02, 3.5]))
+    np.testing.assert_allclose(x, [0.0, 0.0, 2.5, 5.0, 5.0, -1.0])
+
+
+def test_protocol_schedule_and_errors():
+    p = RubbingProtocol(10, 20, motions=5, dwell_s=1.0)
+    assert [t for t, _ in p.schedule()][-2:] == [8.05, 9.05]
+    assert p.duration_s == pytest.approx(10.05)
+    with pytest.raises(ValueError, match="need motions >= 1"):
+        RubbingProtocol(0, 1, motions=0)
