@@ -178,3 +178,17 @@ def test_sigterm_stops_cleanly(tmp_path):
     acq = rec.extra["acquisition"]
     assert acq["status"] == "interrupted" and "interrupted" in stdout
     assert rec.n_samples == fake.frames_sent  # the DAQ was stopped, every frame drained
+
+
+def test_power_cut_mid_line_still_reads(tmp_path):
+    """A row cut short by a power failure is read as NaN and flagged, never a crash."""
+    writer = RecordingWriter(tmp_path / "cut", [Channel("s1_x", "N"), Channel("s1_y", "N")],
+                             1000.0)
+    writer.start()
+    writer.append(np.arange(3), np.ones((3, 2)))
+    writer.close({"status": "recording"})
+    with open(tmp_path / "cut.csv", "a") as fh:
+        fh.write("0.003000,1.5")  # the last row, half written
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "cut")])
+    assert info.exit_code == 0, info.output
+    assert "problem [nonfinite]: channel 's1_y'" in info.output

@@ -86,3 +86,33 @@ def test_sensitivity_file(tmp_path):
         load_sensitivity(path, "BAD")
     with pytest.raises(AcquisitionError, match="cannot read the sensitivity file"):
         load_sensitivity(tmp_path / "missing.json", "ISE0A129")
+
+
+def test_socket_url_works_like_a_port():
+    """``socket://`` reaches a DAQ behind a TCP bridge (e.g. ser2net) with the same code."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def daq():
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)  # the configuration
+            conn.sendall(ConfigAck(0).encode() + DataFrame(5, 0, (1, 2, 3)).encode())
+            time.sleep(0.3)
+
+    thread = threading.Thread(target=daq)
+    thread.start()
+    sensor = OptoForceSensor(f"socket://127.0.0.1:{port}")
+    try:
+        sensor.open()
+        sensor.configure(1000)
+        sensor.start()
+        time.sleep(0.1)
+        assert [f.counts for f in sensor.frames()] == [(1, 2, 3)]
+    finally:
+        sensor.close()
+        thread.join()
+        server.close()

@@ -1,0 +1,92 @@
+"""``frictionfit rub`` with the simulated gripper and the fake DAQ: a measurement that
+segments into motions and fits like simulated ones.
+
+The fake DAQ plays the contact model driven by a twin of the simulated gripper that
+receives the same schedule of commands, so the recorded force answers the recorded
+``move`` events (up to the few ms the commands are sent late).
+"""
+
+import json
+
+import numpy as np
+import pytest
+from fake_optoforce import FakeOptoForce
+from typer.testing import CliRunner
+
+from frictionfit.acquisition.actuator import SimulatedGripper
+from frictionfit.acquisition.protocol import RubbingProtocol
+from frictionfit.cli import app
+from frictionfit.errors import Status
+from frictionfit.recording import read_recording
+from frictionfit.segmentation import segment
+
+PROTOCOL = RubbingProtocol(0.0, 100.0, motions=3, dwell_s=0.5)
+TRUTH = {"k": 20.0, "f_kin": 0.8, "f_static_excess": 0.3, "slip_length": 0.05}
+COUNTS_PER_N = 400.9
+
+
+def _twin_counts(seed=0):
+    """Counts the rig would send at 1 kHz: thumb_x = force, _y = -0.3 force, _z = 2 N."""
+    import jax.numpy as jnp
+
+    from frictionfit.models.stick_slip import contact_force
+
+    clock = iter([0.0, *(t for t, _ in PROTOCOL.schedule())])
+    twin = SimulatedGripper(PROTOCOL.p1, clock=lambda: next(clock))
+    for _, target in PROTOCOL.schedule():
+        twin.move_to(PROTOCOL.p2 if target == "p2" else PROTOCOL.p1)
+    t = np.arange(int((PROTOCOL.duration_s + 1.0) * 1000)) / 1000
+    x_mm = twin.trajectory(t) / (PROTOCOL.p2 - PROTOCOL.p1)  # 1 mm stroke
+    force = np.asarray(contact_force(jnp.asarray(x_mm), 1e-3, **TRUTH))
+    rng = np.random.default_rng(seed)
+    newtons = np.stack([force, -0.3 * force, np.full_like(force, 2.0)], axis=1)
+    return np.round(newtons * COUNTS_PER_N + rng.normal(0, 3, newtons.shape)).astype(int)
+
+
+@pytest.fixture(scope="module")
+def rubbed(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rub")
+    counts = _twin_counts()
+    sens = tmp / "sens.json"
+    sens.write_text(json.dumps({"ISE0A129": [COUNTS_PER_N] * 3}))
+    with FakeOptoForce(tmp / "tty", source=lambda k: tuple(counts[min(k, len(counts) - 1)])):
+        result = CliRunner().invoke(app, [
+            "rub", "--sensor", str(tmp / "tty"), "--name", "thumb", "--actuator", "sim",
+            "--p1", "0", "--p2", "100", "--motions", "3", "--dwell", "0.5", "--label", "fake",
+            "--sensitivity", str(sens), "--out", str(tmp / "rub"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    return read_recording(tmp / "rub")
+
+
+def test_rub_writes_move_events_on_schedule(rubbed):
+    events = [(e.kind, e.target) for e in rubbed.events]
+    assert events == [("move", "p2"), ("move", "p1")] * 3
+    late = np.array([e.t for e in rubbed.events]) - [t for t, _ in PROTOCOL.schedule()]
+    assert np.all(late >= 0) and np.all(late < 0.03)  # sent on time, within the loop's tick
+    assert rubbed.metadata["label"] == "fake" and rubbed.duration_s > 3.0
+    assert rubbed.extra["acquisition"]["frames_corrupted"] == 0
+
+
+def test_rub_segments_into_motions(rubbed):
+    motions = segment(rubbed)
+    assert [m.index for m in motions] == [1, 2]
+    for m in motions:
+        x = m.samples[:, rubbed.channel_names.index("thumb_x")]
+        assert np.isfinite(x).all()
+        # static peak while sliding out, then held by friction: the simulated physics
+        assert 0.9 < np.nanmax(x) < 1.3 and np.nanmin(x) < -0.7
+
+
+@pytest.mark.slow
+def test_rub_measurement_fits(rubbed):
+    from frictionfit.fit import fit_trials
+
+    motions = segment(rubbed)
+    y = np.stack([m.samples[:, 0] for m in motions])
+    m0 = motions[0]
+    res = fit_trials(y, m0.t, (m0.t_out, m0.t_back), model="stick_slip")
+    assert [Status(s) for s in res.status] == [Status.CONVERGED] * 2
+    for values in res.values:
+        # the data are the same law plus 3-count noise: recover it within 10 %
+        assert values["f_kin"] == pytest.approx(TRUTH["f_kin"], rel=0.1)
+        assert values["k"] == pytest.approx(TRUTH["k"], rel=0.1)
