@@ -1,10 +1,62 @@
-"""``frictionfit bench``: (placeholder until it lands)."""
+"""``frictionfit bench``: speed against error on seeded simulated trials, one report."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
+STAGES = ("fit", "uncertainty", "classify")
 
-def bench() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+
+def _run_stage(name: str, quick: bool, seed: int) -> dict:
+    """``frictionfit.bench.<name>.run``; a missing or failing stage is reported, not raised."""
+    import importlib
+
+    try:
+        module = importlib.import_module(f"frictionfit.bench.{name}")
+        return module.run(quick=quick, seed=seed)
+    except Exception as exc:  # noqa: BLE001 - one failing stage never sinks the report
+        return {"stage": name, "error": f"{type(exc).__name__}: {exc}", "summary": {}}
+
+
+def bench(
+    what: str = typer.Argument("all", help="fit, uncertainty, classify, hard-cases, scaling, "
+                               "or all (every stage + scaling + Dask speed-up + hard cases)."),
+    out: Path = typer.Option(..., help="Folder for bench.json, bench.md, speed_vs_error.png."),
+    quick: bool = typer.Option(False, help="Small configurations (minutes, not an hour)."),
+    seed: int = typer.Option(0, help="Seed of the simulated trials."),
+    scheduler: str = typer.Option(None, help="Dask scheduler address for the distributed "
+                                  "timing (default: a local 2-worker cluster)."),
+) -> None:
+    """Run the benchmark on simulated trials with known truth; write the JSON, table and plot."""
+    choices = (*STAGES, "hard-cases", "scaling", "all")
+    if what not in choices:
+        typer.echo(f"error: unknown benchmark {what!r}; choose from {', '.join(choices)}",
+                   err=True)
+        raise typer.Exit(2)
+    from frictionfit.bench.report import merge, write_report
+
+    stages = [_run_stage(s, quick, seed) for s in STAGES if what in (s, "all")]
+    parts = {}
+    if what in ("scaling", "all"):
+        from frictionfit.bench import scaling
+
+        parts["scaling"] = scaling.run(quick=quick, seed=seed)
+        if what == "all":
+            parts["dask"] = scaling.dask_speedup(64 if quick else 256, 2 if quick else 3, seed,
+                                                 scheduler)
+    if what in ("hard-cases", "all"):
+        from frictionfit.bench import hard_cases
+
+        parts["hard_cases"] = hard_cases.run(quick=quick, seed=seed)
+    command = (f"frictionfit bench {what} --out {out}" + (" --quick" if quick else "")
+               + (f" --seed {seed}" if seed else "")
+               + (f" --scheduler {scheduler}" if scheduler else ""))
+    paths = write_report(merge(stages, command=command, **parts), out)
+    for stage in stages:
+        if "error" in stage:
+            typer.echo(f"stage {stage['stage']} failed: {stage['error']}", err=True)
+    typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
+    if any("error" in s for s in stages):
+        raise typer.Exit(1)

@@ -1,0 +1,209 @@
+"""The benchmark report: merge stage results, write ``bench.json``, ``bench.md`` and the plot.
+
+A *stage dict* is what each ``frictionfit.bench.<stage>.run`` returns::
+
+    {"stage": "fit", "summary": {...}, "machine": {...},
+     "points": [{"config": str, "seconds_per_trial": float, "error": float,
+                 "error_name": str, ...}, ...]}
+
+Errors are smaller-is-better, except where ``error_name`` contains "accuracy" or
+a point says ``"higher_is_better": true``. The report marks, per stage, the
+Pareto front of time per trial against error: the configurations that no other
+configuration beats on both at once.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from frictionfit.bench._timing import machine_info
+
+__all__ = ["merge", "pareto_front", "to_markdown", "write_report"]
+
+
+def _higher_is_better(point: Mapping) -> bool:
+    return bool(point.get("higher_is_better", "accuracy" in str(point.get("error_name", ""))))
+
+
+def pareto_front(points: Sequence[Mapping]) -> list[bool]:
+    """Per point, True when no other point is at least as fast and as good, and better in one.
+
+    Points with a non-finite time or error are never on the front.
+
+    Examples
+    --------
+    >>> pareto_front([{"seconds_per_trial": 1.0, "error": 0.1},
+    ...               {"seconds_per_trial": 2.0, "error": 0.2},
+    ...               {"seconds_per_trial": 3.0, "error": 0.05}])
+    [True, False, True]
+    """
+    xy = np.array([[float(p["seconds_per_trial"]),
+                    -float(p["error"]) if _higher_is_better(p) else float(p["error"])]
+                   for p in points], dtype=np.float64).reshape(-1, 2)
+    finite = np.all(np.isfinite(xy), axis=1)
+    front = []
+    for i, row in enumerate(xy):
+        dominated = np.all(xy <= row, axis=1) & np.any(xy < row, axis=1) & finite
+        front.append(bool(finite[i] and not dominated.any()))
+    return front
+
+
+def merge(stages: Sequence[Mapping], *, scaling: Mapping | None = None,
+          dask: Mapping | None = None, hard_cases: Mapping | None = None,
+          command: str = "") -> dict:
+    """One benchmark document from stage dicts and the optional scaling/Dask/hard-case parts.
+
+    The top-level ``summary`` holds every stage summary's keys (a key two stages
+    share with different values is kept under ``<stage>_<key>`` for the later
+    one), plus ``scaling`` (a list of ``{"trials": n, "seconds": s}``) and
+    ``dask_speedup_2_workers`` when those parts are given. A stage that failed
+    is a dict with ``"error"`` and is listed, not merged.
+    """
+    stages = copy.deepcopy(list(stages))
+    summary: dict = {}
+    for stage in stages:
+        for key, value in stage.get("summary", {}).items():
+            if key in summary and summary[key] != value:
+                key = f"{stage['stage']}_{key}"
+            summary[key] = value
+    if scaling is not None:
+        summary["scaling"] = [{"trials": p["trials"], "seconds": p["seconds"]}
+                              for p in scaling["points"]]
+        summary["scaling_exponent"] = scaling["summary"]["scaling_exponent"]
+    if dask is not None:
+        summary["dask_speedup_2_workers"] = dask["summary"]["dask_speedup_2_workers"]
+    if hard_cases is not None:
+        summary.update(hard_cases["summary"])
+    for stage in stages:
+        for point, on_front in zip(stage.get("points", []),
+                                   pareto_front(stage.get("points", [])), strict=True):
+            point["pareto"] = on_front
+    return {"summary": summary, "command": command, "machine": machine_info(),
+            "stages": {s["stage"]: dict(s) for s in stages},
+            **{k: v for k, v in (("scaling", scaling), ("dask", dask),
+                                 ("hard_cases", hard_cases)) if v is not None}}
+
+
+def _clean(obj):
+    """JSON-safe copy: NumPy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _fmt(value) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in rows]
+    return lines + [""]
+
+
+def to_markdown(bench: Mapping) -> str:
+    """The report as Markdown: one table per stage, then scaling, Dask and hard cases."""
+    lines = ["# frictionfit benchmark", ""]
+    if bench.get("command"):
+        lines += [f"Command: `{bench['command']}`", ""]
+    machine = bench.get("machine", {})
+    versions = machine.get("versions", {})
+    lines += [f"Machine: {machine.get('processor')} x{machine.get('cpu_count')}, "
+              f"Python {machine.get('python')}, jax {versions.get('jax')}, "
+              f"optimistix {versions.get('optimistix')}, dask {versions.get('dask')}.", ""]
+    for name, stage in bench.get("stages", {}).items():
+        lines += [f"## {name}", ""]
+        if "error" in stage:
+            lines += [f"Stage failed: {stage['error']}", ""]
+            continue
+        points = sorted(stage.get("points", []), key=lambda p: p["seconds_per_trial"])
+        lines += _table(["configuration", "s / trial", "error", "value", "Pareto"],
+                        [[p["config"], p["seconds_per_trial"], p["error_name"], p["error"],
+                          "**yes**" if p.get("pareto") else ""] for p in points])
+    lines += ["## Summary", ""]
+    lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
+                                       if not isinstance(v, (list, dict))])
+    if "scaling" in bench:
+        lines += ["## Scaling", ""]
+        pts = bench["scaling"]["points"]
+        lines += _table(["trials", "seconds", "s / trial", "peak RSS so far (MB)"],
+                        [[p["trials"], p["seconds"], p["seconds"] / p["trials"],
+                          p["max_rss_mb"]] for p in pts])
+        lines += _table(["trial length (s)", "trials", "s / trial"],
+                        [[p["duration_s"], p["trials"], p["seconds_per_trial"]]
+                         for p in bench["scaling"].get("lengths", [])])
+    if "dask" in bench:
+        d = bench["dask"]["summary"]
+        lines += ["## Dask", "", f"{d['trials']} trials: one process {d['local_s']:.3g} s, "
+                  f"local cluster of 2 workers {d['dask_s']:.3g} s: speed-up "
+                  f"{d['dask_speedup_2_workers']:.3g}x.", ""]
+    if "hard_cases" in bench:
+        lines += ["## Hard cases", ""]
+        lines += _table(["case", "trial", "status", "outcome", "passed", "detail"],
+                        [[r["case"], r["trial"], r["status"], r["outcome"],
+                          "yes" if r["passed"] else "**NO**", r["detail"]]
+                         for r in bench["hard_cases"]["cases"]])
+    return "\n".join(lines)
+
+
+def plot_speed_vs_error(bench: Mapping, path: Path) -> None:
+    """Time per trial (log x) against error, one panel per stage, Pareto front marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    stages = [(n, s) for n, s in bench.get("stages", {}).items() if s.get("points")]
+    fig, axes = plt.subplots(1, max(len(stages), 1), figsize=(5.5 * max(len(stages), 1), 4.2),
+                             squeeze=False)
+    for ax, (name, stage) in zip(axes[0], stages, strict=False):
+        pts = stage["points"]
+        x = np.array([p["seconds_per_trial"] for p in pts], dtype=np.float64)
+        y = np.array([p["error"] for p in pts], dtype=np.float64)
+        front = np.array(pareto_front(pts))
+        ax.scatter(x[~front], y[~front], c="0.6", s=25, label="configuration")
+        order = np.argsort(x[front])
+        ax.plot(x[front][order], y[front][order], "o-", c="C3", ms=6, label="Pareto front")
+        for xi, yi, p in zip(x, y, pts, strict=True):
+            ax.annotate(p["config"], (xi, yi), fontsize=6, xytext=(3, 3),
+                        textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_xlabel("time per trial (s)")
+        ax.set_ylabel(pts[0]["error_name"])
+        ax.set_title(name)
+        ax.legend(fontsize=7)
+    if not stages:
+        axes[0, 0].text(0.5, 0.5, "no stage with points", ha="center")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(bench: Mapping, out: Path) -> dict[str, Path]:
+    """Write ``bench.json``, ``bench.md`` and ``speed_vs_error.png`` into ``out`` (created)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"json": out / "bench.json", "markdown": out / "bench.md",
+             "plot": out / "speed_vs_error.png"}
+    paths["json"].write_text(json.dumps(_clean(bench), indent=2, allow_nan=False) + "\n")
+    paths["markdown"].write_text(to_markdown(bench) + "\n")
+    plot_speed_vs_error(bench, paths["plot"])
+    return paths

@@ -1,0 +1,185 @@
+"""The batched fit on a Dask cluster: trials partitioned across workers, results unchanged.
+
+For users who outgrow one machine. The trials of a batch are cut into contiguous
+chunks, one or more per worker thread; every chunk runs the ordinary
+:func:`frictionfit.fit.fit_trials` on a worker (itself batched and vmapped), and
+the per-chunk results are concatenated back in trial order. A trial's result
+does not depend on which chunk it lands in, so the distributed fit returns the
+same numbers as the local one.
+
+``scheduler`` is a ``distributed.Client`` or a scheduler address
+(``"tcp://host:8786"``); a client made from an address is closed afterwards.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frictionfit.errors import FitError
+from frictionfit.fit import FitResult, fit_trials
+
+__all__ = ["concat_results", "fit_distributed", "map_chunks", "partition"]
+
+
+def partition(n_trials: int, n_chunks: int) -> list[slice]:
+    """Contiguous, nearly equal slices covering ``range(n_trials)`` (no empty ones).
+
+    Examples
+    --------
+    >>> partition(5, 2)
+    [slice(0, 3, None), slice(3, 5, None)]
+    """
+    if n_trials < 1 or n_chunks < 1:
+        raise FitError(f"cannot partition {n_trials} trials into {n_chunks} chunks")
+    bounds = np.linspace(0, n_trials, min(n_chunks, n_trials) + 1).round().astype(int)
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def _connect(scheduler):
+    """``(client, owned)``: the given Client, or a new one on the address (owned, to close)."""
+    from distributed import Client
+
+    if isinstance(scheduler, Client):
+        return scheduler, False
+    if not isinstance(scheduler, str):
+        raise FitError(f"scheduler must be a distributed.Client or an address, not {scheduler!r}")
+    try:
+        return Client(scheduler, timeout="5s"), True
+    except OSError as exc:
+        raise FitError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from exc
+
+
+def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None],
+               shared: dict[str, Any], *, scheduler, n_chunks: int | None = None) -> list[Any]:
+    """Run ``func(**chunk_of_per_trial, **shared)`` on the cluster, one task per chunk.
+
+    Parameters
+    ----------
+    func : callable
+        An importable function (workers unpickle it by name).
+    per_trial : dict of str -> array (n_trials, ...) or None
+        Arguments cut along their first axis; ``None`` entries are passed as ``None``.
+    shared : dict
+        Arguments every chunk receives whole.
+    scheduler : distributed.Client or str
+        The cluster.
+    n_chunks : int, optional
+        Number of tasks; default, the cluster's total worker threads.
+
+    Returns
+    -------
+    list
+        The chunk results, in trial order.
+    """
+    client, owned = _connect(scheduler)
+    try:
+        if n_chunks is None:
+            n_chunks = max(sum(client.nthreads().values()), 1)
+        n_trials = len(next(v for v in per_trial.values() if v is not None))
+        futures = [
+            client.submit(func, **{k: None if v is None else v[rows] for k, v in per_trial.items()},
+                          **shared, pure=False)
+            for rows in partition(n_trials, n_chunks)
+        ]
+        return client.gather(futures)
+    finally:
+        if owned:
+            client.close()
+
+
+def _concat(values: list, name: str):
+    first = values[0]
+    if first is None:
+        return None
+    if isinstance(first, np.ndarray):
+        return np.concatenate(values)
+    if isinstance(first, pd.DataFrame):
+        return pd.concat(values, ignore_index=True)
+    if isinstance(first, list):
+        return [row for part in values for row in part]
+    if isinstance(first, (int, float)):  # per-batch numbers such as wall_s add up
+        return sum(values)
+    raise FitError(f"cannot concatenate FitResult field {name!r} of type {type(first).__name__}")
+
+
+def concat_results(parts: Sequence[FitResult], wall_s: float | None = None) -> FitResult:
+    """One :class:`FitResult` from per-chunk results, rows in the order given.
+
+    Per-trial fields (arrays, lists, tables) are concatenated; per-batch numbers
+    add up, except ``wall_s`` when given (the wall time of the whole call, s).
+    """
+    merged = {f.name: _concat([getattr(p, f.name) for p in parts], f.name)
+              for f in dataclasses.fields(FitResult) if f.init}
+    if wall_s is not None:
+        merged["wall_s"] = wall_s
+    return FitResult(**merged)
+
+
+def _per_trial(value, n_trials: int) -> np.ndarray:
+    return np.broadcast_to(np.asarray(value, dtype=np.float64), (n_trials,)).copy()
+
+
+def _fit_chunk(y, t_out, t_back, displacement, direction, u0, *, t, drive, fit_kwargs):
+    drive_input = (t_out, t_back) if drive == "events" else displacement
+    return fit_trials(y, t, drive_input, drive=drive, direction=direction, u0=u0, **fit_kwargs)
+
+
+def fit_distributed(
+    y,
+    t,
+    drive_input,
+    *,
+    scheduler,
+    n_chunks: int | None = None,
+    drive: str = "events",
+    direction=None,
+    u0=None,
+    **fit_kwargs,
+) -> FitResult:
+    """:func:`frictionfit.fit.fit_trials` with the trials partitioned across a Dask cluster.
+
+    Parameters
+    ----------
+    y, t, drive_input, drive, direction, u0
+        As for :func:`~frictionfit.fit.fit_trials` (force in N, times in s).
+    scheduler : distributed.Client or str
+        A connected client, or the scheduler's address.
+    n_chunks : int, optional
+        Tasks to cut the batch into; default, the cluster's total worker threads.
+    **fit_kwargs
+        Passed unchanged to ``fit_trials`` (``model``, ``solver``, ``chunk_size``, ...).
+
+    Returns
+    -------
+    FitResult
+        One row per trial, in input order; ``wall_s`` is the wall time of the whole
+        distributed call, s.
+
+    Examples
+    --------
+    >>> from distributed import Client, LocalCluster  # doctest: +SKIP
+    >>> with LocalCluster(n_workers=2, processes=False) as lc, Client(lc) as c:  # doctest: +SKIP
+    ...     res = fit_distributed(y, t, (t_out, t_back), scheduler=c, model="stick_slip")
+    """
+    start = time.perf_counter()
+    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+    n = y.shape[0]
+    if drive == "events":
+        t_out, t_back = drive_input
+        per_trial = {"t_out": _per_trial(t_out, n), "t_back": _per_trial(t_back, n),
+                     "displacement": None}
+    else:
+        per_trial = {"t_out": None, "t_back": None,
+                     "displacement": np.asarray(drive_input, dtype=np.float64).reshape(n, -1)}
+    per_trial.update(
+        y=y, direction=None if direction is None else _per_trial(direction, n),
+        u0=None if u0 is None else np.asarray(u0, dtype=np.float64).reshape(n, -1))
+    shared = {"t": np.asarray(t, dtype=np.float64), "drive": drive, "fit_kwargs": fit_kwargs}
+    parts = map_chunks(_fit_chunk, per_trial, shared, scheduler=scheduler, n_chunks=n_chunks)
+    return concat_results(parts, wall_s=time.perf_counter() - start)

@@ -1,0 +1,114 @@
+"""The benchmark report: merging stage dicts, the Pareto front, the files, and the CLI."""
+
+import json
+import sys
+import types
+
+import pytest
+from typer.testing import CliRunner
+
+from frictionfit.bench.report import merge, pareto_front, to_markdown, write_report
+from frictionfit.cli import app
+
+
+def _stage(name, points, **summary):
+    return {"stage": name, "summary": summary, "machine": {},
+            "points": [{"config": c, "seconds_per_trial": s, "error": e, "error_name": n}
+                       for c, s, e, n in points]}
+
+
+FIT = _stage("fit", [("lm", 0.01, 0.02, "median rel. error"),
+                     ("scipy-numpy", 0.5, 0.02, "median rel. error"),
+                     ("dogleg", 0.02, 0.01, "median rel. error"),
+                     ("float32", 0.005, float("nan"), "median rel. error")],
+             trials_per_s=100.0, compile_s=3.0)
+UNC = _stage("uncertainty", [("laplace", 0.001, 0.1, "interval error"),
+                             ("emcee-32x500", 0.8, 0.03, "interval error")],
+             emcee_s_per_trial=0.8, compile_s=5.0)
+CLS = _stage("classify", [("physical", 0.002, 0.9, "accuracy"),
+                          ("spectral", 0.001, 0.7, "accuracy"),
+                          ("raw", 0.003, 0.8, "accuracy")], accuracy=0.9)
+SCALING = {"stage": "scaling", "summary": {"scaling_exponent": 0.93},
+           "points": [{"trials": n, "seconds": n * 0.01, "max_rss_mb": 500.0}
+                      for n in (10, 100)],
+           "lengths": [{"duration_s": 0.5, "trials": 8, "seconds_per_trial": 0.002}]}
+DASK = {"stage": "dask", "summary": {"trials": 64, "local_s": 2.0, "dask_s": 1.25,
+                                     "workers": 2, "dask_speedup_2_workers": 1.6}}
+
+
+def test_pareto_front_smaller_is_better_and_nan_never_on_it():
+    assert pareto_front(FIT["points"]) == [True, False, True, False]
+
+
+def test_pareto_front_accuracy_is_higher_is_better():
+    assert pareto_front(CLS["points"]) == [True, True, False]
+
+
+def test_merge_summary_keeps_every_stage_key_and_adds_scaling_and_dask():
+    bench = merge([FIT, UNC, CLS], scaling=SCALING, dask=DASK, command="frictionfit bench all")
+    s = bench["summary"]
+    assert s["trials_per_s"] == 100.0 and s["emcee_s_per_trial"] == 0.8
+    assert s["compile_s"] == 3.0 and s["uncertainty_compile_s"] == 5.0  # clash kept apart
+    assert s["scaling"] == [{"trials": 10, "seconds": 0.1}, {"trials": 100, "seconds": 1.0}]
+    assert s["dask_speedup_2_workers"] == 1.6
+    assert set(bench["machine"]["versions"]) >= {"jax", "optimistix", "dask"}
+    assert [p["pareto"] for p in bench["stages"]["fit"]["points"]] == [True, False, True, False]
+    assert "pareto" not in FIT["points"][0]  # the caller's dicts are not modified
+
+
+def test_write_report_files(tmp_path):
+    bench = merge([FIT, UNC, CLS], scaling=SCALING, dask=DASK, command="frictionfit bench all")
+    paths = write_report(bench, tmp_path / "out")
+    data = json.loads(paths["json"].read_text())  # strict JSON: NaN became null
+    assert data["stages"]["fit"]["points"][3]["error"] is None
+    assert data["summary"]["dask_speedup_2_workers"] == 1.6
+    md = paths["markdown"].read_text()
+    assert "| dogleg | 0.02 | median rel. error | 0.01 | **yes** |" in md
+    assert "speed-up 1.6x" in md and "`frictionfit bench all`" in md
+    assert paths["plot"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_failed_stage_is_listed_not_merged():
+    failed = {"stage": "uncertainty", "error": "ImportError: nope", "summary": {}}
+    bench = merge([FIT, failed])
+    assert "Stage failed: ImportError: nope" in to_markdown(bench)
+    assert "emcee_s_per_trial" not in bench["summary"]
+
+
+def test_cli_rejects_unknown_benchmark(tmp_path):
+    result = CliRunner().invoke(app, ["bench", "speed", "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "unknown benchmark 'speed'" in result.output
+
+
+def test_cli_bench_one_stage_writes_the_report(tmp_path, monkeypatch):
+    fake = types.ModuleType("frictionfit.bench.fit")
+    fake.run = lambda *, quick=False, seed=0: FIT
+    monkeypatch.setitem(sys.modules, "frictionfit.bench.fit", fake)
+    result = CliRunner().invoke(app, ["bench", "fit", "--out", str(tmp_path), "--quick"])
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "bench.json").read_text())
+    assert data["summary"]["trials_per_s"] == 100.0
+    assert data["command"] == f"frictionfit bench fit --out {tmp_path} --quick"
+    assert (tmp_path / "speed_vs_error.png").exists()
+
+
+def test_cli_failing_stage_exits_1_but_writes(tmp_path, monkeypatch):
+    fake = types.ModuleType("frictionfit.bench.classify")
+
+    def run(*, quick=False, seed=0):
+        raise RuntimeError("no classifier")
+
+    fake.run = run
+    monkeypatch.setitem(sys.modules, "frictionfit.bench.classify", fake)
+    result = CliRunner().invoke(app, ["bench", "classify", "--out", str(tmp_path)])
+    assert result.exit_code == 1
+    assert "stage classify failed: RuntimeError: no classifier" in result.output
+    assert "Stage failed" in (tmp_path / "bench.md").read_text()
+
+
+@pytest.mark.parametrize("bad", [float("inf"), float("-inf")])
+def test_non_finite_summary_values_are_null(tmp_path, bad):
+    bench = merge([_stage("fit", [("lm", 0.01, 0.1, "e")], trials_per_s=bad)])
+    data = json.loads(write_report(bench, tmp_path)["json"].read_text())
+    assert data["summary"]["trials_per_s"] is None
