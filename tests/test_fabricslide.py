@@ -1,0 +1,136 @@
+"""FabricSlide loader: names, timestamps, channels, metadata, malformed files, subsets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from frictionfit.datasets import load_dataset
+from frictionfit.datasets.fabricslide import (
+    COLUMNS,
+    PROXIMITY,
+    TAXELS,
+    load,
+    parse_name,
+    read_slide,
+)
+from frictionfit.errors import DatasetError, RecordingError
+
+HEADER = ", ".join(COLUMNS)
+
+
+def write_slide(path: Path, n: int = 40, start_ms: int = 5000, step_ms=28, rng=None) -> np.ndarray:
+    """A small file in the upstream format ("a, b" with spaces); returns its value rows."""
+    rng = rng or np.random.default_rng(0)
+    ts = start_ms + np.cumsum(np.r_[0, np.broadcast_to(step_ms, (n - 1,))])
+    prox = np.column_stack([rng.integers(0, 100, n), np.full(n, 65535)])
+    taxels = rng.integers(20, 600, size=(n, 16))
+    rows = np.column_stack([ts, prox, taxels]).astype(int)
+    path.write_text(HEADER + "\n" + "\n".join(", ".join(map(str, r)) for r in rows) + "\n")
+    return rows
+
+
+def _replace_field(line: str, i: int, value: str) -> str:
+    fields = line.split(", ")
+    fields[i] = value
+    return ", ".join(fields)
+
+
+def test_parse_name_reads_fabric_pressure_speed_and_repetition():
+    meta = parse_name("Linen_F180_V-10mmps_1.csv")
+    assert meta == {"fabric": "Linen", "pressure": 180, "speed": -10, "direction": "down",
+                    "repetition": 1, "condition": "F180_V-10"}
+    assert parse_name("DenimFlex_F120_V150mmps_0.csv")["direction"] == "up"
+
+
+@pytest.mark.parametrize(
+    "name", ["Linen_F180_10mmps_0.csv", "Linen.csv", "Linen_F180_V0mmps_0.csv"]
+)
+def test_parse_name_rejects_bad_names(name):
+    with pytest.raises(RecordingError, match=rf"{name}: .*(file name|speed 0)"):
+        parse_name(name)
+
+
+def test_read_slide_converts_times_channels_and_metadata(tmp_path):
+    rows = write_slide(tmp_path / "Canvas_F150_V-50mmps_0.csv", step_ms=[28, 29] * 19 + [28])
+    rec = read_slide(tmp_path / "Canvas_F150_V-50mmps_0.csv")
+    assert rec.channel_names == (*TAXELS, *PROXIMITY)
+    assert {c.unit for c in rec.channels} == {"counts"}
+    np.testing.assert_allclose(rec.t, (rows[:, 0] - rows[0, 0]) / 1000.0)
+    np.testing.assert_array_equal(rec.channel("channel7"), rows[:, 3 + 6])
+    np.testing.assert_array_equal(rec.channel("proximity1"), rows[:, 1])
+    assert rec.sample_rate_hz == pytest.approx(1000.0 / 28.5, rel=1e-3)
+    assert rec.label == "Canvas"
+    meta = rec.metadata
+    assert (meta["pressure"], meta["speed"], meta["repetition"]) == (150, -50, 0)
+    assert meta["dataset"] == "fabricslide"
+    assert meta["ramp_s"] == pytest.approx(47.1 / 50)
+    assert meta["logger_start_ms"] == 5000
+
+
+def test_repeated_last_row_is_dropped_and_reported(tmp_path):
+    path = tmp_path / "Linen_F120_V20mmps_0.csv"
+    write_slide(path)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([*lines, lines[-1]]) + "\n")
+    rec = read_slide(path)
+    assert rec.n_samples == 40
+    assert [p.kind for p in rec.problems] == ["duplicate_row"]
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda lines: [lines[0].replace("channel16", "chan16"), *lines[1:]],
+         r"missing column\(s\) \['channel16'\]"),
+        (lambda lines: [*lines[:5], _replace_field(lines[5], 1, "x"), *lines[6:]],
+         r"channel 'proximity1': non-numeric or missing value 'x' at data row 5"),
+        (lambda lines: [*lines[:3], lines[4], lines[3], *lines[5:]],
+         r"channel 'timestamp': timestamp not increasing at data row 4 \(5084 ms then 5056 ms\)"),
+        (lambda lines: lines[:10], r"only 9 rows"),
+        (lambda lines: [], r"cannot read CSV"),
+    ],
+)
+def test_malformed_files_are_rejected_naming_file_and_problem(tmp_path, edit, message):
+    path = tmp_path / "Denim_F210_V-100mmps_1.csv"
+    write_slide(path)
+    path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
+    with pytest.raises(RecordingError, match=rf"Denim_F210_V-100mmps_1.csv: .*{message}"):
+        read_slide(path)
+
+
+def test_folder_load_raises_or_skips_a_bad_file(tmp_path):
+    write_slide(tmp_path / "Linen_F120_V10mmps_0.csv")
+    write_slide(tmp_path / "Canvas_F120_V10mmps_0.csv")
+    (tmp_path / "notes.csv").write_text("timestamp\n1\n")
+    with pytest.raises(RecordingError, match="notes.csv: file name does not follow"):
+        load(tmp_path)
+    with pytest.warns(UserWarning, match="skipped .*notes.csv"):
+        recs = load(tmp_path, on_error="skip")
+    assert [r.name for r in recs] == ["Canvas_F120_V10mmps_0", "Linen_F120_V10mmps_0"]
+    assert len(load_dataset(f"fabricslide:{tmp_path / 'Linen_F120_V10mmps_0.csv'}")) == 1
+
+
+def test_empty_or_missing_folder_is_a_dataset_error(tmp_path):
+    with pytest.raises(DatasetError, match="no FabricSlide recordings"):
+        load(tmp_path)
+    with pytest.raises(DatasetError, match="no such FabricSlide folder"):
+        load(tmp_path / "absent")
+
+
+@pytest.mark.shared
+def test_shared_subset_loads_with_documented_rate_and_lengths(shared, tmp_path):
+    src = shared / "datasets" / "fabricslide"
+    names = ["BeigeCotton_F120_V20mmps_0.csv", "Denim_F210_V-150mmps_1.csv",
+             "WovenFabric_F180_V-10mmps_0.csv"]
+    for name in names:  # a subset folder, by links: nothing is copied
+        (tmp_path / name).symlink_to(src / name)
+    recs = load(tmp_path)
+    assert [r.n_samples for r in recs] == [1060 - 1, 142, 2116]  # first: repeated row dropped
+    for rec in recs:
+        assert rec.sample_rate_hz == pytest.approx(35.6, rel=0.01)
+        assert np.all(np.diff(rec.t) > 0.026) and np.all(np.diff(rec.t) < 0.030)
+        assert rec.duration_s == pytest.approx(594.2 / abs(rec.metadata["speed"]), rel=0.02)
+    assert recs[0].problems[0].kind == "duplicate_row"
