@@ -15,6 +15,7 @@ sample always does. ``cache=False`` switches the cache off.
 from __future__ import annotations
 
 import os
+import warnings
 import weakref
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,10 +24,11 @@ import joblib
 import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.utils.validation import check_is_fitted
+from tqdm.auto import tqdm
 
 from frictionfit.recording import Recording
 
-__all__ = ["RecordingFeatures", "cache_dir", "content_key"]
+__all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key"]
 
 #: Bump when the meaning of cached rows changes for every feature set.
 CACHE_VERSION = 1
@@ -67,10 +69,26 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     in ``transform`` (see :class:`~frictionfit.features.physical.PhysicalFeatures`)
     or document it. Every constructor argument must be a parameter (scikit-learn
     rules), and a ``cache`` parameter (bool) turns the content cache on or off.
+
+    **Missing values.** A recording whose features cannot be computed (too few
+    motions, all samples of a channel lost, failed fits) gives NaN from ``_extract``;
+    ``transform`` never returns NaN: it fills each such value with that feature's
+    median over the recordings seen in ``fit`` (``fill_values_``; 0 when all were
+    NaN) and emits a :class:`FeatureWarning` naming the feature and recordings.
+
+    Attributes
+    ----------
+    fill_values_ : ndarray of shape (n_features,)
+        Training median of each feature, used to fill values that cannot be computed.
+    n_features_out_ : int
+        Number of features.
     """
 
     #: Subclasses bump this when their rows change meaning, to invalidate the cache.
     _version = 1
+    #: Recordings per batched extraction (None: all missing ones at once). A progress
+    #: bar (on a terminal) counts the blocks, and each block is cached when done.
+    _block: int | None = None
     cache: bool = True
 
     def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
@@ -102,11 +120,17 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
                 out[i] = stored(ekey, k)
             else:
                 missing.append(i)
-        if missing:
-            rows = self._checked(self._extract([recordings[i] for i in missing]),
-                                 len(missing), n_out)
-            for i, row in zip(missing, rows, strict=True):
+        blocks = [missing[i:i + (self._block or len(missing))]
+                  for i in range(0, len(missing), self._block or max(len(missing), 1))]
+        bar = tqdm(total=len(missing), desc=f"{type(self).__name__}", unit="recording",
+                   disable=None if len(blocks) > 1 else True)
+        for block in blocks:  # each block is one batched extraction, cached as soon as done
+            rows = self._checked(self._extract([recordings[i] for i in block]),
+                                 len(block), n_out)
+            for i, row in zip(block, rows, strict=True):
                 out[i] = stored(ekey, keys[i], row=row)
+            bar.update(len(block))
+        bar.close()
         return out
 
     @staticmethod
@@ -118,20 +142,53 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         return x
 
     def fit(self, X: Sequence[Recording], y=None) -> RecordingFeatures:
-        """Nothing to learn; records ``n_features_in_`` (1: one recording per row)."""
-        _as_list(X)
-        self.n_features_in_ = 1
-        self.n_features_out_ = len(self._names())
+        """Learn the fill value of each feature: its median over ``X`` (0 where all are NaN)."""
+        self._fit_rows(self._rows(X))
         return self
 
+    def fit_transform(self, X: Sequence[Recording], y=None, **fit_params) -> np.ndarray:
+        rows = self._rows(X)
+        self._fit_rows(rows)
+        return self._filled(rows, X)
+
+    def _fit_rows(self, rows: np.ndarray) -> None:
+        self.n_features_in_ = 1
+        self.n_features_out_ = rows.shape[1]
+        finite = np.isfinite(rows)
+        counts = finite.sum(axis=0)
+        medians = np.zeros(rows.shape[1])
+        for j in np.flatnonzero(counts):
+            medians[j] = np.median(rows[finite[:, j], j])
+        self.fill_values_ = medians
+
     def transform(self, X: Sequence[Recording]) -> np.ndarray:
-        """Features of each recording, shape (n_recordings, n_features)."""
-        check_is_fitted(self, "n_features_out_")
-        return self._rows(X)
+        """Features of each recording, shape (n_recordings, n_features), never NaN."""
+        check_is_fitted(self, "fill_values_")
+        return self._filled(self._rows(X), X)
+
+    def _filled(self, rows: np.ndarray, X) -> np.ndarray:
+        """Fill NaN (failed extractions) with the training medians, and say so."""
+        bad = ~np.isfinite(rows)
+        if bad.any():
+            names = self._names()
+            recs = [r.name for r in _as_list(X)]
+            worst = [recs[i] for i in np.flatnonzero(bad.any(axis=1))[:3]]
+            warnings.warn(
+                f"{type(self).__name__}: {int(bad.sum())} of {bad.size} feature values could "
+                f"not be computed (e.g. {names[int(np.flatnonzero(bad.any(axis=0))[0])]!r}; "
+                f"recordings {worst}); filled with training medians",
+                FeatureWarning, stacklevel=3,
+            )
+            rows = np.where(bad, self.fill_values_[None, :], rows)
+        return rows
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         """Readable feature names with units."""
         return np.asarray(self._names(), dtype=object)
+
+
+class FeatureWarning(UserWarning):
+    """Some feature values could not be computed and were filled (see the message)."""
 
 
 def _as_list(recordings) -> list[Recording]:

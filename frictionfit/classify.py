@@ -1,0 +1,367 @@
+"""Classifiers, pipelines and evaluation protocols over lists of recordings.
+
+A pipeline is ``features -> StandardScaler -> classifier``, built by
+:func:`make_pipeline` from the command-line names (:data:`CLASSIFIERS`,
+``frictionfit.features.FEATURE_SETS``). :func:`evaluate` runs one protocol
+(:data:`PROTOCOLS`) and pools the test predictions of all folds into accuracy,
+macro-F1, a confusion matrix and per-condition breakdowns;
+:func:`evaluate_incremental` adds one class at a time.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from sklearn.base import BaseEstimator, TransformerMixin, clone
+from sklearn.metrics import accuracy_score, confusion_matrix, f1_score
+from sklearn.model_selection import LeaveOneGroupOut, StratifiedKFold, train_test_split
+from sklearn.multiclass import OneVsRestClassifier
+from sklearn.neighbors import KNeighborsClassifier
+from sklearn.neural_network import MLPClassifier
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+
+from frictionfit.errors import DatasetError
+from frictionfit.features import make_features
+from frictionfit.recording import Recording
+
+__all__ = [
+    "CLASSIFIERS",
+    "CONDITIONS",
+    "PROTOCOLS",
+    "Evaluation",
+    "evaluate",
+    "evaluate_incremental",
+    "labels_of",
+    "make_classifier",
+    "make_pipeline",
+    "splits",
+]
+
+CLASSIFIERS = ("svm-ovo", "svm-ova", "svm-poly", "svm-quadratic", "knn", "mlp")
+#: Protocol name -> what it does (see :func:`splits`).
+PROTOCOLS = {
+    "kfold": "stratified 5-fold over all recordings (shuffled, seeded)",
+    "mixed-5fold": "the same as kfold (the gesture papers' name: people mixed)",
+    "person-dependent": "stratified 5-fold within each person, pooled",
+    "holdout": "one stratified 80% / 20% split (baseline D's protocol)",
+    "leave-one-session-out": "train on all sessions but one, test on it; every session",
+    "leave-one-person-out": "the same, by person",
+    "leave-one-repetition-out": "the same, by repetition",
+    "leave-one-pressure-out": "the same, by pressure",
+}
+#: Metadata keys reported per value in :attr:`Evaluation.breakdown` when present.
+CONDITIONS = ("layers", "material", "session", "person", "repetition", "pressure", "speed")
+
+
+def make_classifier(name: str = "svm-ovo", *, seed: int = 0):
+    """A fresh classifier by its command-line name.
+
+    ``svm-ovo``: RBF SVM, one-vs-one, ``gamma="scale"`` (kernel width from the data);
+    ``svm-ova``: the same SVM one-vs-all; ``svm-poly``: cubic polynomial kernel;
+    ``svm-quadratic``: quadratic kernel; ``knn``: distance-weighted 10 nearest
+    neighbours; ``mlp``: a fully connected network (100 ReLU units, Adam, early stopping).
+    All SVMs use ``C=10``; only ``knn`` and ``mlp`` give ``predict_proba``.
+    """
+    def svc(**kw):
+        return SVC(C=10.0, gamma="scale", random_state=seed, **kw)
+
+    if name == "svm-ovo":
+        return svc(kernel="rbf", decision_function_shape="ovo")
+    if name == "svm-ova":
+        return OneVsRestClassifier(svc(kernel="rbf"))
+    if name == "svm-poly":
+        return svc(kernel="poly", degree=3, coef0=1.0)
+    if name == "svm-quadratic":
+        return svc(kernel="poly", degree=2, coef0=1.0)
+    if name == "knn":
+        return KNeighborsClassifier(n_neighbors=10, weights="distance")
+    if name == "mlp":
+        return MLPClassifier(hidden_layer_sizes=(100,), max_iter=1000, early_stopping=True,
+                             validation_fraction=0.15, n_iter_no_change=30, random_state=seed)
+    raise ValueError(f"unknown classifier {name!r}; choose from {list(CLASSIFIERS)}")
+
+
+def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, seed: int = 0,
+                  **feature_params) -> Pipeline:
+    """``features -> StandardScaler -> classifier`` from command-line names.
+
+    Examples
+    --------
+    >>> [name for name, _ in make_pipeline("handcrafted", "knn").steps]
+    ['features', 'scale', 'classifier']
+    """
+    return Pipeline([
+        ("features", make_features(features, **feature_params)),
+        ("scale", StandardScaler()),
+        ("classifier", make_classifier(classifier, seed=seed)),
+    ])
+
+
+class SessionNormalised(TransformerMixin, BaseEstimator):
+    """Features standardised within each recording session (day): a day-drift correction.
+
+    Lab sessions differ by sensor offsets and gains, motor positions and material
+    state, so every feature shifts and scales from day to day. This wrapper computes
+    ``features`` and z-scores each feature within each value of ``metadata[key]``,
+    using only that session's own (unlabelled) recordings, at training and at
+    prediction time alike. A session with fewer than ``min_group`` recordings in a
+    ``transform`` call, or recordings without ``key``, cannot be standardised by
+    itself: it uses the mean of the training sessions' statistics instead (no
+    correction of that day's drift) and a warning says so. Predictions for a whole
+    new session are therefore best made in one call.
+
+    Parameters
+    ----------
+    features : transformer
+        A feature set over recordings.
+    key : str, default "session"
+        The metadata key naming the session.
+    min_group : int, default 20
+        Fewest recordings of a session standardised by their own statistics.
+    """
+
+    def __init__(self, features, key: str = "session", min_group: int = 20):
+        self.features = features
+        self.key = key
+        self.min_group = min_group
+
+    def fit(self, X, y=None) -> SessionNormalised:
+        self.fit_transform(X, y)
+        return self
+
+    def fit_transform(self, X, y=None, **fit_params) -> np.ndarray:
+        X = list(X)
+        self.features_ = clone(self.features)
+        raw = self.features_.fit_transform(X, y)
+        groups = self._groups(X)
+        stats = [self._stats(raw[groups == g]) for g in np.unique(groups)
+                 if g is not None and (groups == g).sum() >= self.min_group]
+        if not stats:
+            stats = [self._stats(raw)]
+        self.mean_ = np.mean([m for m, _ in stats], axis=0)
+        self.scale_ = np.mean([s for _, s in stats], axis=0)
+        self.n_features_in_ = 1
+        return self._normalised(raw, groups)
+
+    def transform(self, X) -> np.ndarray:
+        X = list(X)
+        return self._normalised(self.features_.transform(X), self._groups(X))
+
+    def _groups(self, X) -> np.ndarray:
+        return np.asarray([r.metadata.get(self.key) for r in X], dtype=object)
+
+    @staticmethod
+    def _stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        sd = x.std(axis=0)
+        return x.mean(axis=0), np.where(sd > 0, sd, 1.0)
+
+    def _normalised(self, raw: np.ndarray, groups: np.ndarray) -> np.ndarray:
+        out = (raw - self.mean_) / self.scale_
+        small = []
+        for g in {g for g in groups if g is not None}:
+            rows = groups == g
+            if rows.sum() >= self.min_group:
+                mean, scale = self._stats(raw[rows])
+                out[rows] = (raw[rows] - mean) / scale
+            else:
+                small.append(g)
+        if small or any(g is None for g in groups):
+            warnings.warn(f"{self.key} {sorted(map(str, small))} (or recordings without "
+                          f"{self.key!r}) have fewer than {self.min_group} recordings: "
+                          "standardised with the training statistics, day drift uncorrected",
+                          UserWarning, stacklevel=2)
+        return out
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        return self.features_.get_feature_names_out()
+
+
+def labels_of(recordings: Sequence[Recording], key: str = "label") -> np.ndarray:
+    """``metadata[key]`` of every recording; DatasetError naming the first without it."""
+    missing = [r.name for r in recordings if r.metadata.get(key) is None]
+    if missing:
+        raise DatasetError(f"recording {missing[0]!r} has no metadata {key!r} "
+                           f"({len(missing)} of {len(recordings)} lack it)")
+    return np.asarray([r.metadata[key] for r in recordings], dtype=object)
+
+
+def splits(recordings: Sequence[Recording], protocol: str, y: np.ndarray, *,
+           seed: int = 0, n_splits: int = 5) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``(train_index, test_index)`` pairs of a protocol (see :data:`PROTOCOLS`)."""
+    index = np.arange(len(recordings))
+    y_codes = np.unique(y.astype(str), return_inverse=True)[1]
+    if protocol in ("kfold", "mixed-5fold"):
+        yield from _kfold(index, y_codes, n_splits, seed)
+    elif protocol == "holdout":
+        yield tuple(train_test_split(index, test_size=0.2, stratify=y_codes, random_state=seed))
+    elif protocol == "person-dependent":
+        people = labels_of(recordings, "person").astype(str)
+        for person in np.unique(people):
+            own = index[people == person]
+            yield from _kfold(own, y_codes[own], n_splits, seed)
+    elif protocol.startswith("leave-one-") and protocol.endswith("-out"):
+        key = protocol.removeprefix("leave-one-").removesuffix("-out")
+        groups = labels_of(recordings, key).astype(str)
+        if np.unique(groups).size < 2:
+            raise DatasetError(f"protocol {protocol!r} needs at least two values of {key!r}, "
+                               f"found {np.unique(groups).tolist()}")
+        yield from LeaveOneGroupOut().split(index, y_codes, groups)
+    else:
+        raise ValueError(f"unknown protocol {protocol!r}; choose from {list(PROTOCOLS)}")
+
+
+def _kfold(index, y_codes, n_splits, seed):
+    smallest = np.bincount(y_codes).min() if y_codes.size else 0
+    if smallest < 2:
+        raise DatasetError(f"stratified {n_splits}-fold needs at least 2 recordings per class; "
+                           f"the smallest class has {smallest}")
+    cv = StratifiedKFold(n_splits=min(n_splits, smallest), shuffle=True, random_state=seed)
+    for train, test in cv.split(index, y_codes):
+        yield index[train], index[test]
+
+
+@dataclass
+class Evaluation:
+    """Pooled test predictions of one protocol and their scores.
+
+    Attributes
+    ----------
+    accuracy, macro_f1 : float
+    confusion : DataFrame
+        Counts, true labels as rows, predicted as columns.
+    predictions : DataFrame
+        One row per test recording: ``recording``, ``fold``, ``true``, ``predicted``
+        and the metadata of :data:`CONDITIONS` present.
+    breakdown : dict of str -> DataFrame
+        Per condition key, accuracy and count per value.
+    fold_accuracy : list of float
+    """
+
+    accuracy: float
+    macro_f1: float
+    confusion: pd.DataFrame
+    predictions: pd.DataFrame
+    breakdown: dict[str, pd.DataFrame] = field(default_factory=dict)
+    fold_accuracy: list[float] = field(default_factory=list)
+
+    def derived_accuracy(self, key: str, recordings: Sequence[Recording]) -> float:
+        """Accuracy of a property of the label (e.g. ``layers``) read off the predicted label."""
+        of_label = {r.metadata["label"]: r.metadata.get(key) for r in recordings}
+        pred = self.predictions["predicted"].map(of_label)
+        true = self.predictions["true"].map(of_label)
+        return float(np.mean(pred.to_numpy() == true.to_numpy()))
+
+
+def evaluate(recordings: Sequence[Recording], features="physical", classifier: str = "svm-ovo",
+             protocol: str = "kfold", *, target: str = "label", seed: int = 0,
+             n_splits: int = 5, pipeline: Pipeline | None = None) -> Evaluation:
+    """Train and test ``features -> scaler -> classifier`` under a protocol; pooled scores.
+
+    Parameters
+    ----------
+    recordings : list of Recording
+        Each with ``metadata[target]`` and the group key the protocol needs.
+    features, classifier : str
+        Command-line names (ignored when ``pipeline`` is given).
+    protocol : str
+        One of :data:`PROTOCOLS`.
+    target : str, default "label"
+        The metadata key to predict (e.g. ``"layers"`` for the layer-count decision).
+    pipeline : Pipeline, optional
+        Cloned for every fold instead of building one from the names.
+
+    Examples
+    --------
+    >>> ev = evaluate(recs, "handcrafted", "knn", "leave-one-session-out")  # doctest: +SKIP
+    >>> round(ev.accuracy, 3)  # doctest: +SKIP
+    """
+    recordings = list(recordings)
+    y = labels_of(recordings, target)
+    template = pipeline if pipeline is not None else make_pipeline(features, classifier, seed=seed)
+    rows, fold_acc = [], []
+    for fold, (train, test) in enumerate(splits(recordings, protocol, y, seed=seed,
+                                                n_splits=n_splits)):
+        model = clone(template).fit([recordings[i] for i in train], y[train])
+        pred = model.predict([recordings[i] for i in test])
+        fold_acc.append(float(accuracy_score(y[test].astype(str), pred.astype(str))))
+        for i, p in zip(test, pred, strict=True):
+            rec = recordings[i]
+            rows.append({"recording": rec.name, "fold": fold, "true": y[i], "predicted": p,
+                         **{k: rec.metadata[k] for k in CONDITIONS if k in rec.metadata}})
+    return _scored(pd.DataFrame(rows), fold_acc)
+
+
+def _scored(pred: pd.DataFrame, fold_acc: list[float]) -> Evaluation:
+    true, guess = pred["true"].astype(str), pred["predicted"].astype(str)
+    labels = sorted(set(true) | set(guess))
+    correct = true == guess
+    breakdown = {
+        key: pd.DataFrame({"accuracy": correct.groupby(pred[key]).mean(),
+                           "n": correct.groupby(pred[key]).size()})
+        for key in CONDITIONS if key in pred
+    }
+    return Evaluation(
+        accuracy=float(correct.mean()),
+        macro_f1=float(f1_score(true, guess, average="macro", labels=labels, zero_division=0)),
+        confusion=pd.DataFrame(confusion_matrix(true, guess, labels=labels),
+                               index=labels, columns=labels),
+        predictions=pred, breakdown=breakdown, fold_accuracy=fold_acc,
+    )
+
+
+def evaluate_incremental(recordings: Sequence[Recording], features="spectral",
+                         classifier: str = "knn", *, seed: int = 0, start: int = 2,
+                         test_size: float = 0.5) -> pd.DataFrame:
+    """The class-addition protocol: start with ``start`` classes, add one at a time.
+
+    The recordings of every class are split once into train and test parts
+    (stratified, ``test_size``). At each step the newly added class's training
+    recordings update every pipeline step that has ``partial_fit`` (e.g. the
+    incremental PCA of ``spectral``, the scaler); steps without it are refitted on
+    all classes seen so far (the stateless feature sets, the classifier). The test
+    recordings of the classes seen so far are then classified. Class order is a
+    seeded shuffle.
+
+    Returns
+    -------
+    DataFrame
+        One row per step: ``n_classes``, ``added``, ``accuracy``, ``n_test``.
+    """
+    recordings = list(recordings)
+    y = labels_of(recordings).astype(str)
+    order = np.random.default_rng(seed).permutation(np.unique(y))
+    if order.size <= start:
+        raise DatasetError(f"the incremental protocol needs more than {start} classes, "
+                           f"found {order.size}")
+    train, test = train_test_split(np.arange(len(recordings)), test_size=test_size,
+                                   stratify=y, random_state=seed)
+    pipe = make_pipeline(features, classifier, seed=seed)
+    *transformers, (_, clf) = pipe.steps
+    rows = []
+    for k in range(start, order.size + 1):
+        seen, new = set(order[:k]), set(order[:k] if k == start else order[k - 1:k])
+        seen_train = [i for i in train if y[i] in seen]
+        new_train = [i for i in train if y[i] in new]
+        x_seen: object = [recordings[i] for i in seen_train]
+        x_new: object = [recordings[i] for i in new_train]
+        for _, step in transformers:
+            if hasattr(step, "partial_fit"):
+                step.partial_fit(x_new)
+            else:
+                step.fit(x_seen)
+            x_seen, x_new = step.transform(x_seen), step.transform(x_new)
+        clf.fit(x_seen, y[seen_train])
+        seen_test = [i for i in test if y[i] in seen]
+        x_test: object = [recordings[i] for i in seen_test]
+        for _, step in transformers:
+            x_test = step.transform(x_test)
+        acc = float(accuracy_score(y[seen_test], clf.predict(x_test)))
+        rows.append({"n_classes": k, "added": ",".join(sorted(new)), "accuracy": acc,
+                     "n_test": len(seen_test)})
+    return pd.DataFrame(rows)

@@ -1,0 +1,280 @@
+"""Physical features: fitted contact-model parameters and measured contact quantities.
+
+For each non-preparatory motion and force channel of a rubbing measurement:
+
+**Fitted** (``fitted=True``): the contact model ``model`` (default ``relaxation``) is
+fitted by :func:`frictionfit.fit.fit_trials` to the motion (moving average of
+``decimate`` samples, then every ``decimate``-th sample: the contact time scales,
+tens of ms and up, survive, and the fit gets ``decimate`` times cheaper). All
+trials of all recordings of a batch go into one ``fit_trials`` call. Kept: ``k``
+(N/mm per nominal mm of stroke), ``f_kin`` (N), ``f_static_excess`` (N), the
+static/kinetic ratio ``(f_kin + f_static_excess) / f_kin`` (1), ``relax_frac`` (1)
+and ``tau`` (s); never the ``offset`` (it is the day's sensor offset, not the
+material) nor the motor's ``delay`` / ``ramp``. ``with_stderr=True`` adds each
+parameter's standard error.
+
+**Measured** (``measured=True``), per movement phase (``out``, ``back``), from the
+signal after a moving average of 9 samples, relative to its value ``x0`` at the
+command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
+``static`` (N, the deviation at the end of the relaxation), ``relaxed_frac``
+(1, ``1 - static / rise``: the share of the peak that relaxes; gain-free),
+``t_relax`` (s, from the peak until the deviation has covered 63% of the way to
+its final level: a model-free relaxation time), ``onset_rate`` (N/s, the largest
+slope between the command and the peak: loading stiffness times drive speed) and
+``t_peak`` (s).
+
+**Missing values.** A trial whose fit fails (any status but CONVERGED and
+ILL_CONDITIONED, whose values stand though some may be poorly determined; and
+MAX_STEPS unless ``accept_max_steps``) gives NaN parameters; NaN samples are
+masked in the fit and skipped by the measurements. A measurement's value is the
+median over its motions ignoring NaN; where every motion is NaN the base class
+fills the training median and warns (:class:`~frictionfit.features._base.FeatureWarning`).
+
+**Dispatch.** Recordings of the ``fabricslide`` kind (``metadata["dataset"]``)
+are handed to :class:`frictionfit.features.sliding.SlidingPhysicalFeatures`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from frictionfit.errors import RecordingError, Status
+from frictionfit.features._base import FeatureWarning, RecordingFeatures
+from frictionfit.features._rubbing import (
+    PHASES,
+    RUBBING_CHANNELS,
+    channel_samples,
+    command_times,
+    median_over_motions,
+    motions,
+)
+from frictionfit.models import PARAMS, get_model
+from frictionfit.recording import Recording
+from frictionfit.segmentation import Motion, moving_average
+
+__all__ = ["FITTED", "MEASURED", "PhysicalFeatures", "measured_phase"]
+
+#: Fitted quantities kept (``static_kinetic_ratio`` is derived from two parameters).
+FITTED = ("k", "f_kin", "f_static_excess", "static_kinetic_ratio", "relax_frac", "tau")
+#: Measured quantities per phase and their units.
+MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "s"),
+            ("onset_rate", "N/s"), ("t_peak", "s"))
+
+
+def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
+                   peak_samples: int) -> np.ndarray:
+    """The :data:`MEASURED` quantities of one phase of one (filtered) channel.
+
+    ``x``: the motion's signal (N, NaN where missing); ``i_cmd``: the command's
+    sample; ``i_end``: the phase end (exclusive); ``peak_samples``: the peak window.
+    """
+    out = np.full(len(MEASURED), np.nan)
+    idx = np.flatnonzero(np.isfinite(x[i_cmd:i_end])) + i_cmd
+    window = idx[idx < i_cmd + peak_samples]
+    if window.size < 2:
+        return out
+    dev = x - x[idx[0]]
+    i_peak = window[np.argmax(np.abs(dev[window]))]
+    rise, static = dev[i_peak], dev[idx[-1]]
+    loading = idx[idx <= i_peak]
+    slopes = np.abs(np.diff(dev[loading]) / np.diff(loading)) * rate_hz
+    after = idx[idx >= i_peak]
+    target = rise - 0.63 * (rise - static)
+    crossed = after[np.sign(rise) * (dev[after] - target) <= 0]
+    out[:] = [
+        rise,
+        static,
+        1.0 - static / rise if rise != 0 else np.nan,
+        (crossed[0] - i_peak) / rate_hz if crossed.size else np.nan,
+        slopes.max() if slopes.size else np.nan,
+        (i_peak - i_cmd) / rate_hz,
+    ]
+    return out
+
+
+def _is_sliding(recordings: Sequence[Recording]) -> bool:
+    kinds = {r.metadata.get("dataset") == "fabricslide" for r in recordings}
+    if len(kinds) > 1:
+        raise ValueError("physical features: fabricslide recordings cannot be mixed with "
+                         "rubbing recordings in one call")
+    return kinds == {True}
+
+
+class PhysicalFeatures(RecordingFeatures):
+    """Fitted contact-model parameters and measured contact quantities per channel.
+
+    Parameters
+    ----------
+    fitted : bool, default True
+        Include the fitted model parameters (see the module notes).
+    measured : bool, default True
+        Include the measured quantities.
+    model : str, default "relaxation"
+        Family member fitted (``frictionfit.models.FAMILY``).
+    decimate : int, default 10
+        Moving average and sub-sampling factor before the fit.
+    max_steps : int, default 100
+        Solver step budget per trial.
+    accept_max_steps : bool, default True
+        Keep the last iterate of fits that ran out of steps (their values are
+        least-squares improvements over the start, often not yet converged in
+        ill-determined directions); False makes them NaN.
+    with_stderr : bool, default False
+        Add the fitted parameters' standard errors.
+    channels : tuple of str
+        Force channels to use, by name.
+    cache : bool, default True
+        Cache rows by recording content.
+
+    Examples
+    --------
+    >>> PhysicalFeatures(fitted=False).get_feature_names_out()[0]
+    'thumb_x:out_rise [N]'
+    """
+
+    _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
+
+    def __init__(self, fitted: bool = True, measured: bool = True, model: str = "relaxation",
+                 decimate: int = 10, max_steps: int = 100, accept_max_steps: bool = True,
+                 with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
+                 cache: bool = True):
+        self.fitted = fitted
+        self.measured = measured
+        self.model = model
+        self.decimate = decimate
+        self.max_steps = max_steps
+        self.accept_max_steps = accept_max_steps
+        self.with_stderr = with_stderr
+        self.channels = channels
+        self.cache = cache
+
+    # --- names -------------------------------------------------------------
+    def _fitted_names(self) -> list[str]:
+        names = []
+        for p in FITTED:
+            unit = "1" if p == "static_kinetic_ratio" else PARAMS[p].unit
+            names.append(f"{p} [{unit}]")
+            if self.with_stderr and p != "static_kinetic_ratio":
+                names.append(f"{p}_stderr [{unit}]")
+        return names
+
+    def _names(self) -> list[str]:
+        names = []
+        for ch in self.channels:
+            if self.fitted:
+                names += [f"{ch}:fit_{n}" for n in self._fitted_names()]
+            if self.measured:
+                names += [f"{ch}:{p}_{n} [{u}]" for p in PHASES for n, u in MEASURED]
+        if not names:
+            raise ValueError("physical features: set fitted and/or measured")
+        return names
+
+    # --- sklearn contract with the fabricslide dispatch ----------------------
+    def _delegate(self, X):
+        from frictionfit.features.sliding import SlidingPhysicalFeatures
+
+        return SlidingPhysicalFeatures(cache=self.cache)
+
+    def fit(self, X: Sequence[Recording], y=None) -> PhysicalFeatures:
+        X = list(X)
+        self.delegate_ = self._delegate(X).fit(X, y) if _is_sliding(X) else None
+        return self if self.delegate_ is not None else super().fit(X, y)
+
+    def fit_transform(self, X: Sequence[Recording], y=None, **fit_params) -> np.ndarray:
+        X = list(X)
+        if _is_sliding(X):
+            self.fit(X, y)
+            return self.delegate_.transform(X)
+        self.delegate_ = None
+        return super().fit_transform(X, y)
+
+    def transform(self, X: Sequence[Recording]) -> np.ndarray:
+        if getattr(self, "delegate_", None) is not None:
+            return self.delegate_.transform(X)
+        return super().transform(X)
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        if getattr(self, "delegate_", None) is not None:
+            return self.delegate_.get_feature_names_out(input_features)
+        return super().get_feature_names_out(input_features)
+
+    # --- extraction ----------------------------------------------------------
+    def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
+        found: list[list[Motion] | None] = []
+        for rec in recordings:
+            try:
+                found.append(motions(rec, self.channels, filter_n=9))
+            except RecordingError as exc:
+                warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=2)
+                found.append(None)
+        fits = self._fit_all([m for ms in found if ms for m in ms]) if self.fitted else None
+        out = np.full((len(recordings), len(self._names())), np.nan)
+        k = 0
+        for i, ms in enumerate(found):
+            if not ms:
+                continue
+            rows = []
+            for m in ms:
+                row = []
+                for j in range(len(self.channels)):
+                    if fits is not None:
+                        row.append(fits[k])
+                        k += 1
+                    if self.measured:
+                        row.append(self._measured(m, j))
+                rows.append(np.concatenate(row))
+            out[i] = median_over_motions(rows)
+        return out
+
+    def _measured(self, m: Motion, j: int) -> np.ndarray:
+        x = channel_samples(m, self.channels)[:, j]
+        rate = m.sample_rate_hz
+        cmd = {p: int(round(s * rate)) for p, s in command_times(m).items()}
+        ends = {"out": cmd["back"], "back": x.shape[0]}
+        return np.concatenate([measured_phase(x, rate, cmd[p], ends[p], int(round(0.3 * rate)))
+                               for p in PHASES])
+
+    def _fit_all(self, all_motions: list[Motion]) -> np.ndarray:
+        """One ``fit_trials`` call for every (motion, channel); rows of fitted features."""
+        width = len(self._fitted_names())
+        if not {"f_static_excess", "relax_frac", "tau"} <= set(get_model(self.model).param_names):
+            raise ValueError(f"physical features need a model with static friction and "
+                             f"relaxation ('relaxation' or 'rich'), not {self.model!r}")
+        if not all_motions:
+            return np.empty((0, width))
+        from frictionfit.fit import fit_trials
+
+        n = min(m.samples.shape[0] for m in all_motions)
+        d = self.decimate
+        ys, t_out, t_back = [], [], []
+        for m in all_motions:
+            x = moving_average(channel_samples(m, self.channels)[:n], d)[::d] if d > 1 \
+                else channel_samples(m, self.channels)[:n]
+            ys += list(x.T)
+            t_out += [m.t_out] * x.shape[1]
+            t_back += [m.t_back] * x.shape[1]
+        t = all_motions[0].t[:n][::d]
+        res = fit_trials(np.asarray(ys), t, (np.asarray(t_out), np.asarray(t_back)),
+                         model=self.model, max_steps=self.max_steps)
+        ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
+        if self.accept_max_steps:
+            ok.add(Status.MAX_STEPS)
+        rows = np.full((res.n_trials, width), np.nan)
+        for i in range(res.n_trials):
+            if Status(int(res.status[i])) in ok:
+                rows[i] = self._fitted_row(res.values[i], res.stderr[i])
+        return rows
+
+    def _fitted_row(self, values: dict, stderr: dict) -> list[float]:
+        row = []
+        for p in FITTED:
+            if p == "static_kinetic_ratio":
+                row.append((values["f_kin"] + values["f_static_excess"]) / values["f_kin"])
+                continue
+            row.append(values[p])
+            if self.with_stderr:
+                row.append(stderr[p])
+        return row
