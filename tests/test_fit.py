@@ -58,16 +58,18 @@ def test_bad_shapes_raise_named_error():
 
 def test_non_finite_jacobian_is_a_status_not_a_crash():
     # Regression: one trial's non-finite Jacobian crashed eigvalsh and sank the batch.
-    from frictionfit.fit import _statistics, _status
+    from frictionfit.fit._stats import statistics, status_of
     from frictionfit.models import get_model
 
     model = get_model("elastic_plastic")
-    u = np.zeros((2, model.n_params))
+    p = model.n_params
+    u = np.zeros((2, p))
     resid = np.full((2, 50), 0.1)
-    jac = np.ones((2, 50, model.n_params)) + np.arange(model.n_params)
-    jac[0, 3, 1] = np.nan
+    jac = np.ones((2, 50, p)) + np.arange(p) * np.linspace(0, 1, 50)[:, None]
+    jtj = np.einsum("inp,inq->ipq", jac, jac)
+    jtj[0, 1, 1] = np.nan
     mask = np.ones((2, 50), dtype=bool)
-    stats = _statistics(model, u, resid, jac, mask)
+    stats = statistics(model, u, resid, jtj, mask)
     assert stats["flags"][0]["k"] == "singular" and np.isnan(stats["stderr"][0]["k"])
-    assert _status(model, True, u[0], stats, 0, mask[0]) is Status.NONFINITE
+    assert status_of(p, True, u[0], stats["chi2"][0], stats["cond"][0], mask[0]) is Status.NONFINITE
     assert np.isfinite(stats["chi2"][1])

@@ -10,7 +10,19 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-__all__ = ["maxwell_step"]
+__all__ = ["maxwell_coefficients", "maxwell_step"]
+
+
+def maxwell_coefficients(dt, tau):
+    """Decay ``a = exp(-dt/tau)`` and ramp weight ``g = (1 - a) tau/dt`` of one step.
+
+    ``dt`` and ``tau`` in seconds. Constant over a recording, so a scan computes
+    them once; ``expm1`` keeps both exact without cancellation for ``tau << dt``
+    (``a -> 0``, ``g -> tau/dt``) and ``tau >> dt`` (``a -> 1``, ``g -> 1``).
+    """
+    h = dt / tau
+    g = jnp.where(h < 1e-8, 1.0 - 0.5 * h, -jnp.expm1(-h) / jnp.maximum(h, 1e-300))
+    return jnp.exp(-h), g
 
 
 def maxwell_step(w, z_old, z_new, dt, tau):
@@ -20,8 +32,5 @@ def maxwell_step(w, z_old, z_new, dt, tau):
     ``tau << dt`` gives ``w -> z`` and ``tau >> dt`` gives ``w`` unchanged, without
     cancellation.
     """
-    h = dt / tau
-    a = jnp.exp(-h)
-    # (1 - a) / h, the ramp-response weight, computed stably for small and large h.
-    g = jnp.where(h < 1e-8, 1.0 - 0.5 * h, -jnp.expm1(-h) / jnp.maximum(h, 1e-300))
+    a, g = maxwell_coefficients(dt, tau)
     return z_new + a * (w - z_old) - (z_new - z_old) * g

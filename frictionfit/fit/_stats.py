@@ -1,0 +1,141 @@
+"""lmfit-style statistics of a batch at its optimum, identifiability flags, status, BIC choice.
+
+Covariance ``sigma^2 pinv(J^T J)`` in unconstrained coordinates, mapped to physical
+standard errors by the delta method; chi-square, reduced chi-square, AIC and BIC
+with the sample count deflated by the residuals' lag-1 autocorrelation
+(``n (1 - rho) / (1 + rho)``: autocorrelated residuals would otherwise inflate every
+BIC difference), and the condition number of the column-scaled ``J^T J``.
+
+A parameter is flagged (not reported as a confident number) when it sits on a
+bound, when its standard error is undefined or exceeds its value, or when it is
+almost perfectly correlated (``|corr| > CORRELATED``) with another parameter: then
+only a combination of the two is determined by the trial (for instance the
+stiffness, the movement duration and the slip-weakening length while the contact
+sticks on the quadratic start of the drive).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from frictionfit.errors import Status
+from frictionfit.models import ContactModel
+
+__all__ = ["BIC_TIE", "CORRELATED", "ILL_CONDITIONED", "choose", "statistics", "status_of"]
+
+#: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
+ILL_CONDITIONED = 1e12
+#: BIC differences below this are ties, resolved in favour of the smaller model.
+BIC_TIE = 2.0
+#: |correlation| above which two parameters are flagged as trading off.
+CORRELATED = 0.99
+
+
+def _delta(par, u: float) -> tuple[float, float]:
+    """Physical value and d(physical)/du (central difference of the transform)."""
+    h = 1e-6
+    v = float(par.to_physical(np.float64(u)))
+    dv = (float(par.to_physical(np.float64(u + h))) - float(par.to_physical(np.float64(u - h))))
+    return v, dv / (2 * h)
+
+
+def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
+    """Values, stderr, flags and condition number of one trial (finite inputs)."""
+    p_free = len(free)
+    scale = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+    scaled = jtj / np.outer(scale, scale)
+    ev = np.linalg.eigvalsh(scaled)
+    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else np.inf
+    cov = redchi * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    corr = cov / np.maximum(np.outer(sd, sd), 1e-300)
+    np.fill_diagonal(corr, 0.0)
+    values, errs, flags = {}, {}, {}
+    pos = dict(zip(free, range(p_free), strict=True))
+    for j, par in enumerate(model.params):
+        v, dv = _delta(par, u[j])
+        values[par.name] = v
+        if j not in pos:
+            errs[par.name] = 0.0
+            flags[par.name] = "fixed" if par.name in fixed_names else "tied"
+            continue
+        jj = pos[j]
+        var = cov[jj, jj]
+        se = abs(dv) * np.sqrt(var) if var >= 0 and np.isfinite(var) else np.nan
+        errs[par.name] = float(se)
+        partner = int(np.argmax(np.abs(corr[jj]))) if p_free > 1 else jj
+        if par.at_bound(v):
+            flags[par.name] = "at bound"
+        elif not np.isfinite(se) or scale[jj] < 1e-12:
+            flags[par.name] = "singular"
+        elif par.transform != "identity" and se > abs(v):
+            flags[par.name] = "stderr > value"
+        elif p_free > 1 and abs(corr[jj, partner]) > CORRELATED:
+            flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
+    return values, errs, flags, cond
+
+
+def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):
+    """Statistics of one family member over a batch (NumPy).
+
+    ``u`` (n_trials, n_params) full unconstrained optimum; ``resid`` (n_trials,
+    n_samples) masked residuals (N); ``jtj`` (n_trials, p_free, p_free) over the free
+    parameters ``free`` (indices; all by default); ``fixed_names`` the parameters
+    held fixed by the user (the other non-free ones are tied).
+    """
+    free = tuple(range(model.n_params)) if free is None else tuple(free)
+    n = mask.sum(axis=1).astype(np.float64)
+    p = len(free)
+    chi2 = np.sum(resid**2, axis=1)
+    redchi = chi2 / np.maximum(n - p, 1.0)
+    r0, r1 = resid[:, :-1], resid[:, 1:]
+    rho = np.clip(np.sum(r0 * r1, axis=1) / np.maximum(chi2, 1e-300), 0.0, 0.99)
+    n_eff = np.maximum(n * (1 - rho) / (1 + rho), p + 2.0)
+    loglike_term = n_eff * np.log(np.maximum(chi2 / np.maximum(n, 1.0), 1e-300))
+    aic = loglike_term + 2 * p
+    bic = loglike_term + p * np.log(n_eff)
+    values, stderrs, flags, conds = [], [], [], []
+    for i in range(u.shape[0]):
+        if not (np.all(np.isfinite(jtj[i])) and np.all(np.isfinite(u[i]))
+                and np.isfinite(chi2[i])):
+            # Non-finite Jacobian: this trial's statistics are undefined; flag, don't raise.
+            names = model.param_names
+            values.append({nm: float(par.to_physical(np.float64(np.nan_to_num(u[i, j]))))
+                           for j, (nm, par) in enumerate(zip(names, model.params, strict=True))})
+            stderrs.append(dict.fromkeys(names, np.nan))
+            flags.append(dict.fromkeys(names, "singular"))
+            conds.append(np.inf)
+            chi2[i] = np.nan
+            continue
+        v, e, f, c = _one(model, u[i], jtj[i], redchi[i], free, set(fixed_names))
+        values.append(v)
+        stderrs.append(e)
+        flags.append(f)
+        conds.append(c)
+    return dict(values=values, stderr=stderrs, flags=flags, chi2=chi2, redchi=redchi,
+                aic=aic, bic=bic, cond=np.asarray(conds))
+
+
+def choose(bic: pd.DataFrame) -> list[str]:
+    """Per trial, the smallest member whose BIC is within BIC_TIE of the best."""
+    values = bic.to_numpy()
+    best = np.nanmin(np.where(np.isfinite(values), values, np.inf), axis=1)
+    chosen = []
+    for i, b in enumerate(best):
+        ok = np.flatnonzero(values[i] <= b + BIC_TIE)
+        chosen.append(bic.columns[ok[0]] if ok.size else bic.columns[0])
+    return chosen
+
+
+def status_of(n_free: int, converged: bool, u, chi2: float, cond: float, mask) -> Status:
+    """The Status of one trial from its solver outcome and statistics."""
+    if mask.sum() < 3 * n_free:
+        return Status.INSUFFICIENT_DATA
+    if not (np.all(np.isfinite(u)) and np.isfinite(chi2)):
+        return Status.NONFINITE
+    if not converged:
+        return Status.MAX_STEPS
+    if cond > ILL_CONDITIONED:
+        return Status.ILL_CONDITIONED
+    return Status.CONVERGED

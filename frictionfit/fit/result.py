@@ -1,0 +1,138 @@
+"""The per-trial result table of a batch of fits, and its lmfit-style report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from frictionfit.errors import Status
+from frictionfit.models import PARAMS
+
+__all__ = ["FitResult", "fit_report"]
+
+
+@dataclass
+class FitResult:
+    """Per-trial fit results, one row per trial; values in physical units.
+
+    Attributes
+    ----------
+    model : list of str
+        The model fitted (or chosen, with ``model="auto"``) per trial.
+    values, stderr : list of dict
+        Physical parameter values and standard errors per trial (NaN stderr only
+        where the covariance could not be computed; such parameters are flagged).
+    flags : list of dict
+        Per parameter, a short reason it is not identifiable ("at bound",
+        "stderr > value", "singular", "trades off with <name>") or that it was not
+        fitted ("fixed", "tied"); absent when it is fine.
+    status : ndarray of Status codes
+    chi2, redchi, aic, bic, r2, cond : ndarray
+    n_steps : ndarray
+        Solver steps used.
+    bic_table : DataFrame or None
+        With ``model="auto"``: BIC per trial (rows) and family member (columns).
+    wall_s : float
+        Wall time of the whole batch, s.
+    solver : str
+        The solver used; ``n_starts`` the number of starting points per trial.
+    direction, drive_input, drive, stroke_mm
+        What :meth:`predict` needs to recompute a trial's fitted curve.
+    """
+
+    model: list[str]
+    values: list[dict]
+    stderr: list[dict]
+    flags: list[dict]
+    status: np.ndarray
+    chi2: np.ndarray
+    redchi: np.ndarray
+    aic: np.ndarray
+    bic: np.ndarray
+    r2: np.ndarray
+    cond: np.ndarray
+    n_steps: np.ndarray
+    u: list[np.ndarray] = field(repr=False)
+    bic_table: pd.DataFrame | None = None
+    wall_s: float = 0.0
+    solver: str = "lm"
+    n_starts: int = 1
+    direction: np.ndarray | None = field(default=None, repr=False)
+    drive_input: object = field(default=None, repr=False)
+    drive: str = "events"
+    stroke_mm: float = 1.0
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.model)
+
+    def to_frame(self, ids=None) -> pd.DataFrame:
+        """One row per trial: id, model, status, each parameter with stderr and unit, stats."""
+        rows = []
+        for i in range(self.n_trials):
+            row = {"trial": i if ids is None else ids[i], "model": self.model[i],
+                   "status": Status(int(self.status[i])).name.lower()}
+            for name, v in self.values[i].items():
+                unit = PARAMS[name].unit
+                row[f"{name} [{unit}]"] = v
+                row[f"{name}_stderr [{unit}]"] = self.stderr[i][name]
+                row[f"{name}_flag"] = self.flags[i].get(name, "")
+            for stat in ("chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps"):
+                row[stat] = getattr(self, stat)[i]
+            row["wall_s_per_trial"] = self.wall_s / max(self.n_trials, 1)
+            rows.append(row)
+        return pd.DataFrame(rows)
+
+    def predict(self, i: int, t) -> np.ndarray:
+        """The fitted force (N) of trial ``i`` at uniform times ``t`` (s)."""
+        import jax.numpy as jnp
+
+        from frictionfit.models import get_model
+
+        if self.direction is None or self.drive_input is None:
+            raise ValueError("this FitResult does not carry its drive; refit with fit_trials")
+        member = get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm)
+        if self.drive == "events":
+            drive_i = (self.drive_input[0][i], self.drive_input[1][i])
+        else:
+            drive_i = jnp.asarray(self.drive_input[i])
+        return np.asarray(member.predict(jnp.asarray(self.u[i]), jnp.asarray(t), drive_i,
+                                         self.direction[i]))
+
+    def identifiable(self, i: int) -> dict[str, float]:
+        """The parameters of trial ``i`` reported with confidence (no flag), physical units."""
+        return {n: v for n, v in self.values[i].items() if n not in self.flags[i]}
+
+
+def fit_report(result: FitResult, i: int = 0) -> str:
+    """An lmfit-style report of trial ``i``: statistics, values +/- stderr (%), flags."""
+    lines = [
+        f"[[Model]]\n    {result.model[i]}",
+        "[[Fit Statistics]]",
+        f"    status             = {Status(int(result.status[i])).name}"
+        f" ({Status(int(result.status[i])).message})",
+        f"    solver steps       = {result.n_steps[i]}",
+        f"    chi-square         = {result.chi2[i]:.6g}",
+        f"    reduced chi-square = {result.redchi[i]:.6g}",
+        f"    Akaike info crit   = {result.aic[i]:.6g}",
+        f"    Bayesian info crit = {result.bic[i]:.6g}",
+        f"    R-squared          = {result.r2[i]:.6g}",
+        f"    condition number   = {result.cond[i]:.3g}",
+        "[[Variables]]",
+    ]
+    for name, v in result.values[i].items():
+        se = result.stderr[i][name]
+        unit = PARAMS[name].unit
+        pct = f" ({100 * se / abs(v):.2f}%)" if np.isfinite(se) and v != 0 else ""
+        flag = result.flags[i].get(name)
+        warn = (f"  ({flag})" if flag in ("fixed", "tied")
+                else f"  <-- not identifiable: {flag}" if flag else "")
+        lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{warn}")
+    if result.bic_table is not None:
+        lines.append("[[BIC by model]]")
+        for name, b in result.bic_table.iloc[i].items():
+            mark = "  <-- chosen" if name == result.model[i] else ""
+            lines.append(f"    {name:16s} {b:.6g}{mark}")
+    return "\n".join(lines)
