@@ -167,8 +167,14 @@ def _refine_start(s: np.ndarray, ok: np.ndarray, rate: float, lo: int, hi: int) 
 
 
 def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign: float,
-                 span: tuple[float, float]) -> float | None:
-    """Movement stop (samples): end of the deceleration drop, searched ``span`` s after start."""
+                 span: tuple[float, float], noise: float, last: bool = True) -> float | None:
+    """Movement stop (samples): end of the deceleration drop, searched ``span`` s after start.
+
+    A drop is a candidate where the signal runs against the loading direction
+    (``sign``) over 8 ms and is flat-ish in the 16 ms before and after. ``last``: take
+    the latest candidate above ``10 noise`` (the deceleration ends the movement; an
+    earlier one is the slip-weakening drop after the static peak); else the strongest.
+    """
     a, b = int(start + span[0] * rate), min(int(start + span[1] * rate), s.size - int(0.03 * rate))
     if b - a < 10:
         return None
@@ -176,14 +182,14 @@ def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign:
     idx = np.arange(a, b)
     before = sign * (s[idx] - s[idx - k])  # the drop: against the direction of the rise
     after = np.abs(s[idx + 2 * k] - s[idx])
-    score = -before - 0.5 * after
-    # the deceleration ends the movement: the last strong drop, not the slip-weakening one
-    peaks = np.flatnonzero((score >= 0.4 * score.max())
+    ahead = np.abs(s[idx - k] - s[np.maximum(idx - 3 * k, 0)])  # sliding: flat before the drop
+    score = -before - 0.5 * (after + ahead)
+    peaks = np.flatnonzero((score >= max(0.05 * score.max(), 10 * noise))
                            & (score == maximum_filter1d(score, 2 * k + 1, mode="nearest")))
-    c = int(idx[peaks[-1]]) if peaks.size else int(idx[np.argmax(score)])
+    c = int(idx[peaks[-1]]) if last and peaks.size else int(idx[np.argmax(score)])
     win = np.arange(c - int(0.03 * rate), c + int(0.025 * rate))
     tt = (win - win[0]) / rate
-    t0s = np.arange(c - int(0.01 * rate), c + int(0.01 * rate), _GRID_S * rate)
+    t0s = np.arange(max(c - int(0.01 * rate), a), min(c + int(0.01 * rate), b), _GRID_S * rate)
     widths = np.arange(0.004, 0.022, 0.001)
     cand = [(t0, wd) for t0 in t0s for wd in widths]
     t0v = np.array([(c0 - win[0]) / rate for c0, _ in cand])
@@ -192,6 +198,32 @@ def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign:
     one = np.ones_like(ramp)
     designs = np.stack([one, one * tt, one * tt**2, ramp], axis=-1)
     return float(cand[_best(tt, s[win], ok[win].astype(float), designs)][0])
+
+
+def _stops(s: np.ndarray, ok: np.ndarray, rate: float, starts: list[float | None],
+           tolerance_s: float = 0.008) -> list[float | None]:
+    """Stops of all movements; durations far from the recording's median are searched again.
+
+    The motor's movement time hardly changes within a measurement, so a stop more than
+    ``tolerance_s`` from ``start + median duration`` is looked for again within
+    ``tolerance_s`` of it.
+    """
+    signs = [None if a is None else
+             float(np.sign(s[min(int(a) + int(0.05 * rate), s.size - 1)] - s[int(a)]))
+             for a in starts]
+    noise = 1.4826 * float(np.median(np.abs(s - moving_average(s, 15))))
+    stops = [None if a is None else _refine_stop(s, ok, rate, a, g, (0.03, 0.25), noise)
+             for a, g in zip(starts, signs, strict=True)]
+    durations = [(b - a) / rate for a, b in zip(starts, stops, strict=True)
+                 if a is not None and b is not None]
+    if len(durations) < 3:
+        return stops
+    med = float(np.median(durations))
+    for i, (a, b) in enumerate(zip(starts, stops, strict=True)):
+        if a is not None and (b is None or abs((b - a) / rate - med) > tolerance_s):
+            stops[i] = _refine_stop(s, ok, rate, a, signs[i],
+                                    (med - tolerance_s, med + tolerance_s), noise, last=False)
+    return stops
 
 
 def _bursts(s: np.ndarray, rate: float, min_gap_s: float = 0.4) -> list[tuple[int, float]]:
@@ -254,15 +286,14 @@ def detect_movements(
         for i, sign in bursts:
             start = _refine_start(s, ok, rate, i - int(0.08 * rate), i + int(0.1 * rate))
             found.append(("p2" if sign == first else "p1", None, start))
+    stops = _stops(s, ok, rate, [start for _, _, start in found])
     out = []
-    for target, t_cmd, start in found:
-        detected = start is not None
+    for (target, t_cmd, start), stop in zip(found, stops, strict=True):
+        detected = start is not None and stop is not None
         if start is None:
             start = (t_cmd + lag_s - t[0]) * rate
-        rise = np.sign(s[min(int(start) + int(0.05 * rate), s.size - 1)] - s[int(start)])
-        stop = _refine_stop(s, ok, rate, start, rise, (0.03, 0.25)) if detected else None
         if stop is None:
-            stop, detected = start + move_s * rate, False
+            stop = start + move_s * rate
         cmd = t_cmd if t_cmd is not None else t[0] + start / rate - lag_s
         out.append(Movement(target, t[0] + start / rate, t[0] + stop / rate, cmd, detected))
     return out
@@ -327,7 +358,9 @@ def segment(
     period = float(np.median(np.diff(cmds))) if len(cmds) > 1 else float(t[-1] - cmds[0] + pre_s)
     n = int(round(period * rate))
     motions = []
-    for i, out in enumerate(outs):
+    for k, out in enumerate(outs):
+        # without events, number motions by time (the first out command is at the start)
+        i = k if use_events and has_events else int(round((out.command - t[0]) / period))
         start = int(round((out.command - pre_s - t[0]) * rate))
         back = [m for m in moves if m.target == "p1" and out.command < m.command < out.command
                 + period]
