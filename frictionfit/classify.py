@@ -35,6 +35,7 @@ __all__ = [
     "CONDITIONS",
     "PROTOCOLS",
     "Evaluation",
+    "SessionNormalised",
     "evaluate",
     "evaluate_incremental",
     "labels_of",
@@ -88,16 +89,23 @@ def make_classifier(name: str = "svm-ovo", *, seed: int = 0):
 
 
 def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, seed: int = 0,
-                  **feature_params) -> Pipeline:
+                  normalise_by: str | None = "session", **feature_params) -> Pipeline:
     """``features -> StandardScaler -> classifier`` from command-line names.
+
+    With ``normalise_by`` (default ``"session"``) the features are standardised
+    within each session first (:class:`SessionNormalised`; a no-op for data
+    without sessions). ``feature_params`` go to the feature sets that take them.
 
     Examples
     --------
     >>> [name for name, _ in make_pipeline("handcrafted", "knn").steps]
     ['features', 'scale', 'classifier']
     """
+    feats = make_features(features, **feature_params)
+    if normalise_by:
+        feats = SessionNormalised(feats, key=normalise_by)
     return Pipeline([
-        ("features", make_features(features, **feature_params)),
+        ("features", feats),
         ("scale", StandardScaler()),
         ("classifier", make_classifier(classifier, seed=seed)),
     ])
@@ -114,7 +122,9 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
     ``transform`` call, or recordings without ``key``, cannot be standardised by
     itself: it uses the mean of the training sessions' statistics instead (no
     correction of that day's drift) and a warning says so. Predictions for a whole
-    new session are therefore best made in one call.
+    new session are therefore best made in one call. When no training session has
+    ``min_group`` recordings (e.g. gesture or FabricSlide data without sessions),
+    the wrapper passes the features through unchanged.
 
     Parameters
     ----------
@@ -140,18 +150,20 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         self.features_ = clone(self.features)
         raw = self.features_.fit_transform(X, y)
         groups = self._groups(X)
-        stats = [self._stats(raw[groups == g]) for g in np.unique(groups)
+        self.n_features_in_ = 1
+        stats = [self._stats(raw[groups == g]) for g in set(groups)
                  if g is not None and (groups == g).sum() >= self.min_group]
-        if not stats:
-            stats = [self._stats(raw)]
+        self.active_ = bool(stats)
+        if not self.active_:  # no sessions in the training data: nothing to correct
+            return raw
         self.mean_ = np.mean([m for m, _ in stats], axis=0)
         self.scale_ = np.mean([s for _, s in stats], axis=0)
-        self.n_features_in_ = 1
         return self._normalised(raw, groups)
 
     def transform(self, X) -> np.ndarray:
         X = list(X)
-        return self._normalised(self.features_.transform(X), self._groups(X))
+        raw = self.features_.transform(X)
+        return self._normalised(raw, self._groups(X)) if self.active_ else raw
 
     def _groups(self, X) -> np.ndarray:
         return np.asarray([r.metadata.get(self.key) for r in X], dtype=object)

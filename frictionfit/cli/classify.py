@@ -1,25 +1,222 @@
-"""``frictionfit features|train|predict|evaluate``: (placeholders until they land)."""
+"""``frictionfit features|train|predict|evaluate``: feature tables, models, predictions, scores."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
+DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
+FEATURES_HELP = ("Feature set(s): physical, handcrafted, fftbins, spectral, raw, gesture, touch, "
+                 "shortcut; a comma list concatenates them.")
+CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
+#: Metadata columns written beside the features / predictions when present.
+GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
+#: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
+ALL_DEFAULTS = {
+    "recordings": (["physical", "handcrafted", "fftbins", "spectral", "raw"],
+                   ["kfold", "leave-one-session-out"]),
+    "fabricslide": (["physical", "spectral", "physical,spectral", "shortcut"],
+                    ["leave-one-repetition-out", "leave-one-pressure-out"]),
+    "gesture": (["gesture", "touch", "gesture,touch"],
+                ["person-dependent", "mixed-5fold", "leave-one-person-out"]),
+}
 
-def features() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+
+def _load(dataset: str):
+    from frictionfit.datasets import load_dataset
+    from frictionfit.errors import FrictionfitError
+
+    try:
+        recordings = load_dataset(dataset)
+    except FrictionfitError as exc:
+        _fail(str(exc))
+    if not recordings:
+        _fail(f"dataset {dataset!r} holds no recordings")
+    return recordings
 
 
-def train() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+def _fail(message: str, code: int = 1):
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code)
 
 
-def predict() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+def _groups(rec) -> dict:
+    return {k: rec.metadata[k] for k in GROUP_COLUMNS if k in rec.metadata}
 
 
-def evaluate() -> None:
-    """Not written yet."""
-    raise typer.Exit(2)
+def features(
+    dataset: str = typer.Option(..., help=DATASET_HELP),
+    kind: str = typer.Option("physical", help=FEATURES_HELP),
+    out: Path = typer.Option(Path("features.csv"), help="Output table (.csv)."),
+) -> None:
+    """Write one row per recording: recording, label, group columns, then the features."""
+    import pandas as pd
+
+    from frictionfit.features import make_features
+
+    recordings = _load(dataset)
+    try:
+        transformer = make_features(kind)
+        x = transformer.fit_transform(recordings)
+    except (ValueError, ImportError) as exc:
+        _fail(str(exc))
+    meta = pd.DataFrame([{"recording": r.name, "label": r.label, **_groups(r)}
+                         for r in recordings])
+    table = pd.concat([meta, pd.DataFrame(x, columns=transformer.get_feature_names_out())],
+                      axis=1)
+    table.to_csv(out, index=False)
+    typer.echo(f"{len(table)} recordings x {x.shape[1]} features -> {out}")
+
+
+def train(
+    dataset: str = typer.Option(..., help=DATASET_HELP),
+    features: str = typer.Option("physical", help=FEATURES_HELP),
+    classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
+    out: Path = typer.Option(Path("model.joblib"), help="Where to save the model."),
+    seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
+) -> None:
+    """Train features -> (session standardisation) -> scaler -> classifier on a labelled dataset."""
+    import joblib
+
+    from frictionfit.classify import labels_of, make_pipeline
+    from frictionfit.errors import FrictionfitError
+
+    recordings = _load(dataset)
+    try:
+        y = labels_of(recordings)
+        pipeline = make_pipeline(features, classifier, seed=seed).fit(recordings, y)
+    except (FrictionfitError, ValueError, ImportError) as exc:
+        _fail(str(exc))
+    joblib.dump({
+        "pipeline": pipeline,
+        "features": features,
+        "classifier": classifier,
+        "feature_names": list(pipeline[:-2].get_feature_names_out()),
+        "labels": sorted(map(str, set(y))),
+        "n_train": len(recordings),
+        "frictionfit_version": _version(),
+    }, out)
+    typer.echo(f"trained {features} + {classifier} on {len(recordings)} recordings "
+               f"({len(set(y))} classes) -> {out}")
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("frictionfit")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def predict(
+    model: Path = typer.Argument(..., help="A model saved by `frictionfit train`."),
+    dataset: str = typer.Option(..., help=DATASET_HELP),
+    out: Path = typer.Option(Path("predictions.csv"), help="Output table (.csv)."),
+) -> None:
+    """Write recording, predicted, probability (when the classifier gives one) and true label."""
+    import joblib
+    import numpy as np
+    import pandas as pd
+
+    if not model.is_file():
+        _fail(f"model file {model} not found")
+    saved = joblib.load(model)
+    if not isinstance(saved, dict) or "pipeline" not in saved:
+        _fail(f"{model} is not a model saved by `frictionfit train`")
+    pipeline = saved["pipeline"]
+    recordings = _load(dataset)
+    try:
+        predicted = pipeline.predict(recordings)
+    except (ValueError, ImportError) as exc:
+        _fail(str(exc))
+    table = pd.DataFrame({"recording": [r.name for r in recordings], "predicted": predicted})
+    if hasattr(pipeline, "predict_proba"):
+        table["probability"] = pipeline.predict_proba(recordings).max(axis=1)
+    labels = [r.label for r in recordings]
+    if all(lab is not None for lab in labels):
+        table["true"] = labels
+    table.to_csv(out, index=False)
+    typer.echo(f"{len(table)} predictions -> {out}")
+    if "true" in table:
+        acc = float(np.mean(table["true"].astype(str) == table["predicted"].astype(str)))
+        typer.echo(f"accuracy: {acc:.3f}")
+
+
+def evaluate(
+    dataset: str = typer.Option(..., help=DATASET_HELP),
+    features: str = typer.Option("physical", help=FEATURES_HELP),
+    classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
+    protocol: str = typer.Option("kfold", help="kfold, mixed-5fold, person-dependent, holdout, "
+                                 "leave-one-{session,person,repetition,pressure}-out."),
+    target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),
+    out: Path = typer.Option(None, help="Save the scores (.csv)."),
+    confusion: Path = typer.Option(None, help="Save the confusion matrix (.png)."),
+    all_: bool = typer.Option(False, "--all", help="Every feature set x classifier x protocol "
+                              "(defaults per dataset kind; or the --feature-sets, "
+                              "--classifiers, --protocols lists)."),
+    feature_sets: str = typer.Option(None, help="With --all: feature sets, ';'-separated."),
+    classifiers: str = typer.Option(None, help="With --all: classifiers, comma-separated."),
+    protocols: str = typer.Option(None, help="With --all: protocols, comma-separated."),
+    seed: int = typer.Option(0, help="Seed of the splits and classifiers."),
+) -> None:
+    """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
+    import pandas as pd
+
+    from frictionfit.classify import CLASSIFIERS
+    from frictionfit.classify import evaluate as run
+    from frictionfit.errors import FrictionfitError
+
+    recordings = _load(dataset)
+    if all_:
+        kind = dataset.partition(":")[0]
+        default_sets, default_protocols = ALL_DEFAULTS.get(kind, ALL_DEFAULTS["recordings"])
+        combos = [(f, c, p)
+                  for f in (feature_sets.split(";") if feature_sets else default_sets)
+                  for c in (classifiers.split(",") if classifiers else CLASSIFIERS)
+                  for p in (protocols.split(",") if protocols else default_protocols)]
+    else:
+        combos = [(features, classifier, protocol)]
+    rows = []
+    for f, c, p in combos:
+        try:
+            ev = run(recordings, f, c, p, target=target, seed=seed)
+        except (FrictionfitError, ValueError, ImportError) as exc:
+            if not all_:
+                _fail(str(exc))
+            typer.echo(f"skipped {f} / {c} / {p}: {exc}", err=True)
+            continue
+        rows.append({"features": f, "classifier": c, "protocol": p,
+                     "accuracy": ev.accuracy, "macro_f1": ev.macro_f1})
+        typer.echo(f"{f:>20} {c:>14} {p:>26}  accuracy {ev.accuracy:.3f}  "
+                   f"macro-F1 {ev.macro_f1:.3f}")
+    if not rows:
+        _fail("no combination could be evaluated")
+    table = pd.DataFrame(rows)
+    if out is not None:
+        table.to_csv(out, index=False)
+        typer.echo(f"scores -> {out}")
+    if confusion is not None and not all_:
+        _plot_confusion(ev.confusion, confusion, f"{features} / {classifier} / {protocol}")
+        typer.echo(f"confusion matrix -> {confusion}")
+    if not all_:
+        typer.echo(f"macro-F1: {ev.macro_f1:.3f}")
+        typer.echo(f"accuracy: {ev.accuracy:.3f}")
+
+
+def _plot_confusion(matrix, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from sklearn.metrics import ConfusionMatrixDisplay
+
+    n = len(matrix)
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.3 * n + 2), max(4.0, 0.3 * n + 2)))
+    ConfusionMatrixDisplay(matrix.to_numpy(), display_labels=list(matrix.index)).plot(
+        ax=ax, colorbar=False, include_values=n <= 12, xticks_rotation="vertical")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
