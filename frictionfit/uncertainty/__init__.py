@@ -1,0 +1,271 @@
+"""Posterior uncertainties of fitted contact-model parameters: Laplace and emcee.
+
+:func:`sample_posterior` takes a :class:`~frictionfit.fit.FitResult` and the
+data it was fitted to and returns a :class:`Posterior` per trial, by one of
+
+- ``"laplace"``: a Gaussian at the posterior mode (fast; one Jacobian per trial);
+- ``"emcee"``: an affine-invariant ensemble (emcee, ``vectorize=True``), every
+  trial's walkers evaluated in one batched JAX call per lockstep round, run
+  until the chain is >= 50 integrated autocorrelation times long;
+- ``"auto"`` (default): Laplace, except emcee for the trials where Laplace is
+  not to be trusted: the fit did not end ``CONVERGED`` (e.g. ill-conditioned),
+  a parameter is flagged (at a bound, stderr > value, singular), the Hessian's
+  condition number exceeds :data:`AUTO_MAX_COND`, or the log-posterior along a
+  parameter's Gaussian profile line, 2 sd out, differs from the Gaussian's drop
+  of 2 by more than :data:`AUTO_MAX_PROFILE_DEV` (see
+  :func:`~frictionfit.uncertainty.laplace.profile_disagreement`).
+
+The log-posterior (AR(1) Gaussian likelihood, priors from the parameter bounds)
+is described in :mod:`frictionfit.uncertainty._logpost`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from frictionfit.errors import FitError, Status
+from frictionfit.fit import FitResult
+from frictionfit.models import get_model
+from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
+from frictionfit.uncertainty._logpost import TrialData, logp_rows, noise_estimate, residuals
+from frictionfit.uncertainty.laplace import laplace, profile_disagreement
+from frictionfit.uncertainty.posterior import (
+    QUANTILES,
+    Posterior,
+    corner_plot,
+    posterior_summary,
+    to_arviz,
+)
+
+__all__ = ["AUTO_MAX_COND", "AUTO_MAX_PROFILE_DEV", "METHODS", "Posterior", "corner_plot",
+           "posterior_summary", "sample_posterior", "to_arviz"]
+
+METHODS = ("laplace", "emcee", "auto")
+#: ``auto``: condition number of the unit-diagonal Hessian above which emcee is used.
+AUTO_MAX_COND = 1e8
+#: ``auto``: largest tolerated |log-posterior drop - 2| at 2 sd on a profile line.
+AUTO_MAX_PROFILE_DEV = 1.0
+_SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
+
+
+def _directions(model, t, y, mask, t_out, t_back, u) -> np.ndarray:
+    """The channel sign (+1/-1) under which ``u`` fits each trial best."""
+    res = residuals(model)
+    chi2 = [np.sum(np.asarray(res(u, t, y, mask, t_out, t_back, np.full(len(u), s))) ** 2,
+                   axis=1) for s in (1.0, -1.0)]
+    return np.where(chi2[0] <= chi2[1], 1.0, -1.0)
+
+
+def _auto_reason(fit: FitResult, i: int, cond: float, dev: float) -> str:
+    """Why trial ``i`` needs emcee under the ``auto`` policy ("" when Laplace is fine)."""
+    if fit.status[i] != Status.CONVERGED:
+        return f"fit status {Status(int(fit.status[i])).name.lower()}"
+    if fit.flags[i]:
+        return "flagged: " + ", ".join(f"{k} {v}" for k, v in fit.flags[i].items())
+    if not cond <= AUTO_MAX_COND:
+        return f"ill-conditioned (cond {cond:.2g})"
+    if not dev <= AUTO_MAX_PROFILE_DEV:
+        return f"non-Gaussian profile (|drop - 2| = {dev:.2g})"
+    return ""
+
+
+def _laplace_summary(model, mode, cov):
+    """Quantiles and sd (physical) of one trial's Laplace Gaussian."""
+    from scipy.stats import norm
+
+    sd_u = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    quant, sd = {}, {}
+    for j, par in enumerate(model.params):
+        quant[par.name] = np.array([float(par.to_physical(np.float64(mode[j] + norm.ppf(q)
+                                                                     * sd_u[j])))
+                                    for q in QUANTILES.values()])
+        h = 1e-6
+        slope = (float(par.to_physical(np.float64(mode[j] + h)))
+                 - float(par.to_physical(np.float64(mode[j] - h)))) / (2 * h)
+        sd[par.name] = abs(slope) * sd_u[j]
+    return quant, sd
+
+
+def _emcee_summary(model, chain: ChainResult):
+    flat = chain.samples.reshape(-1, chain.samples.shape[-1])
+    ess = chain.ess()
+    quant, sd, tau, ess_d = {}, {}, {}, {}
+    for j, par in enumerate(model.params):
+        phys = np.asarray(par.to_physical(flat[:, j]))
+        quant[par.name] = np.quantile(phys, list(QUANTILES.values()))
+        sd[par.name] = float(np.std(phys, ddof=1))
+        tau[par.name] = float(chain.tau[j])
+        ess_d[par.name] = float(ess[j])
+    return quant, sd, tau, ess_d
+
+
+def _evaluator(model, data: TrialData):
+    """``evaluate(U, idx)`` for the lockstep sampler; rows padded to a power of two."""
+    f = logp_rows(model)
+
+    def evaluate(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        n = U.shape[0]
+        size = max(32, 1 << (n - 1).bit_length())
+        U = np.concatenate([U, np.repeat(U[:1], size - n, axis=0)])
+        idx = np.concatenate([idx, np.repeat(idx[:1], size - n)])
+        return np.asarray(f(U, idx, data.t, *data.arrays()))[:n]
+
+    return evaluate
+
+
+def sample_posterior(
+    fit: FitResult,
+    y,
+    t,
+    drive_input,
+    *,
+    method: str = "auto",
+    noise: str = "ar1",
+    nwalkers: int | None = None,
+    max_steps: int = 3000,
+    check_every: int = 50,
+    min_tau_multiple: float = 50.0,
+    seed: int = 0,
+    chains_path=None,
+) -> Posterior:
+    """Posterior of every trial's parameters, by Laplace and/or emcee.
+
+    Parameters
+    ----------
+    fit : FitResult
+        The least-squares fits (``drive="events"``) of the trials in ``y``.
+    y : array (n_trials, n_samples)
+        The force (N) that was fitted; NaN marks missing samples.
+    t : array (n_samples,)
+        Sample times, s.
+    drive_input : tuple
+        ``(t_out, t_back)`` command times, s (scalars or per trial).
+    method : {"auto", "laplace", "emcee"}
+        See the module docstring for the ``auto`` policy.
+    noise : {"ar1", "white"}
+        Likelihood: AR(1) residuals (rho estimated per trial) or white.
+    nwalkers : int, optional
+        Walkers per trial; default ``2 * n_params + 2``.
+    max_steps, check_every, min_tau_multiple
+        emcee step cap, steps between tau checks, required chain length in tau.
+    seed : int
+        Seed of the walkers' start and moves (trial ``i`` uses ``seed + i``).
+    chains_path : path, optional
+        Save emcee chains to this HDF5 file (one group ``trial_<i>`` per trial).
+
+    Returns
+    -------
+    Posterior
+        One entry per trial; trials whose fit is NONFINITE or INSUFFICIENT_DATA
+        get method ``"none"``, NaN values and ``converged=False``.
+
+    Examples
+    --------
+    >>> from frictionfit.simulation.trials import simulate_trials
+    >>> from frictionfit.fit import fit_trials
+    >>> ts = simulate_trials("elastic_plastic", 2, seed=0)
+    >>> res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model="elastic_plastic")
+    >>> post = sample_posterior(res, ts.y, ts.t, (ts.t_out, ts.t_back), method="laplace")
+    >>> post.method
+    ['laplace', 'laplace']
+    """
+    if method not in METHODS:
+        raise FitError(f"unknown uncertainty method {method!r}; choose from {METHODS}")
+    if noise not in ("ar1", "white"):
+        raise FitError(f"unknown noise model {noise!r}; choose 'ar1' or 'white'")
+    start = time.perf_counter()
+    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+    t = np.asarray(t, dtype=np.float64)
+    n = y.shape[0]
+    if n != fit.n_trials or y.shape[1] != t.size:
+        raise FitError(f"y is {y.shape} but the fit has {fit.n_trials} trials and t has "
+                       f"{t.size} samples")
+    t_out, t_back = (np.broadcast_to(np.asarray(a, dtype=np.float64), (n,)).copy()
+                     for a in drive_input)
+    mask = np.isfinite(y)
+    y0 = np.where(mask, y, 0.0)
+    nan = {}
+    out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
+               quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
+               acceptance=np.full(n, np.nan), chains=[None] * n)
+    for name in dict.fromkeys(fit.model):
+        model = get_model(name)
+        nan = {p: np.nan for p in model.param_names}
+        rows = np.array([i for i in range(n) if fit.model[i] == name])
+        for i in rows:
+            out["quantiles"][i] = {p: np.full(len(QUANTILES), np.nan) for p in nan}
+            out["sd"][i], out["tau"][i], out["ess"][i] = dict(nan), dict(nan), dict(nan)
+        ok = np.array([fit.status[i] not in _SKIP and np.all(np.isfinite(fit.u[i]))
+                       for i in rows], dtype=bool)
+        for i in rows[~ok]:
+            out["reason"][i] = f"skipped: fit status {Status(int(fit.status[i])).name.lower()}"
+        rows = rows[ok]
+        if not rows.size:
+            continue
+        _sample_group(model, fit, rows, t, y0[rows], mask[rows], t_out[rows], t_back[rows],
+                      method, noise, nwalkers or 2 * model.n_params + 2, max_steps,
+                      check_every, min_tau_multiple, seed, chains_path, out)
+    return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
+
+
+def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nwalkers,
+                  max_steps, check_every, min_tau_multiple, seed, chains_path, out) -> None:
+    """Laplace for every trial of one model, then emcee where ``method`` asks for it."""
+    u_hat = np.stack([fit.u[i] for i in rows])
+    direction = _directions(model, t, y, mask, t_out, t_back, u_hat)
+    resid = np.asarray(residuals(model)(u_hat, t, y, mask, t_out, t_back, direction))
+    sigma, rho = noise_estimate(resid, mask, model.n_params)
+    if noise == "white":
+        rho = np.zeros_like(rho)
+    data = TrialData(t, y, mask, t_out, t_back, direction, sigma, rho)
+    mode, cov, cond = laplace(model, data, u_hat)
+    finite = np.all(np.isfinite(cov), axis=(1, 2))
+    if method == "auto":
+        dev = profile_disagreement(model, data, mode, cov)
+        reasons = [_auto_reason(fit, i, cond[k], dev[k]) for k, i in enumerate(rows)]
+    else:
+        reasons = [method] * rows.size
+    use_emcee = np.array([method == "emcee" or (method == "auto" and bool(r))
+                          for r in reasons])
+    for k, i in enumerate(rows):
+        out["reason"][i] = reasons[k] or "laplace ok"
+        if not use_emcee[k]:
+            out["method"][i] = "laplace"
+            out["converged"][i] = finite[k]
+            if finite[k]:
+                out["quantiles"][i], out["sd"][i] = _laplace_summary(model, mode[k], cov[k])
+            else:
+                out["reason"][i] = "laplace covariance not finite; use emcee"
+    sel = np.flatnonzero(use_emcee)
+    if not sel.size:
+        return
+    fallback = np.diag(np.full(model.n_params, 1e-2))
+    covs = np.stack([cov[k] if finite[k] else fallback for k in sel])
+    backends = None
+    if chains_path is not None:
+        import emcee
+
+        backends = [emcee.backends.HDFBackend(str(chains_path), name=f"trial_{rows[k]}")
+                    for k in sel]
+    sub = TrialData(t, y[sel], mask[sel], t_out[sel], t_back[sel], direction[sel], sigma[sel],
+                    rho[sel])
+    chains = run_lockstep(_evaluator(model, sub), mode[sel], covs, nwalkers=nwalkers,
+                          seed=seed, max_steps=max_steps, check_every=check_every,
+                          min_tau_multiple=min_tau_multiple, backends=backends)
+    for k, chain in zip(sel, chains, strict=True):
+        i = rows[k]
+        out["method"][i] = "emcee"
+        if isinstance(chain, BaseException):
+            out["reason"][i] = f"emcee failed: {chain}"
+            continue
+        out["chains"][i] = chain
+        out["converged"][i] = chain.converged
+        out["acceptance"][i] = chain.acceptance
+        out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _emcee_summary(
+            model, chain)
+        if not chain.converged:
+            out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps "
+                                 f"(max tau {np.max(chain.tau):.1f}, acceptance "
+                                 f"{chain.acceptance:.2f})")

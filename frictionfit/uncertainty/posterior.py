@@ -1,0 +1,143 @@
+"""Per-trial posterior summaries: the :class:`Posterior` result, tables, arviz and corner."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from frictionfit.models import PARAMS, get_model
+from frictionfit.uncertainty._ensemble import ChainResult
+
+__all__ = ["QUANTILES", "Posterior", "corner_plot", "posterior_summary", "to_arviz"]
+
+#: Reported posterior quantiles (fractions) and their column names.
+QUANTILES = {"p2.5": 0.025, "p16": 0.16, "median": 0.5, "p84": 0.84, "p97.5": 0.975}
+
+
+@dataclass
+class Posterior:
+    """Posterior of every trial of a fit, physical units.
+
+    Attributes
+    ----------
+    model : list of str
+        Family member per trial.
+    method : list of str
+        ``"emcee"``, ``"laplace"`` or ``"none"`` (trial skipped: see ``reason``).
+    reason : list of str
+        Why that method (the ``auto`` policy's reason) or why the trial was skipped.
+    converged : ndarray of bool
+        emcee: chain >= 50 tau, tau stable, acceptance checked; Laplace: finite
+        covariance. A False trial's numbers are reported but must not be trusted.
+    quantiles : list of dict
+        Per parameter, the values at :data:`QUANTILES` (physical unit).
+    sd, tau, ess : list of dict
+        Per parameter: posterior sd (physical unit), integrated autocorrelation time
+        (steps) and effective sample size (NaN for Laplace).
+    acceptance : ndarray
+        Mean emcee acceptance fraction per trial (NaN for Laplace).
+    chains : list
+        emcee :class:`ChainResult` per trial (unconstrained), or None.
+    wall_s : float
+        Wall time of the whole batch, s.
+    """
+
+    model: list[str]
+    method: list[str]
+    reason: list[str]
+    converged: np.ndarray
+    quantiles: list[dict]
+    sd: list[dict]
+    tau: list[dict]
+    ess: list[dict]
+    acceptance: np.ndarray
+    chains: list[ChainResult | None] = field(repr=False)
+    wall_s: float = 0.0
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.model)
+
+    def samples(self, i: int) -> pd.DataFrame:
+        """Post-burn-in, thinned emcee draws of trial ``i`` in physical units."""
+        chain = self.chains[i]
+        if chain is None:
+            raise ValueError(f"trial {i} has no emcee chain (method {self.method[i]!r})")
+        flat = chain.samples.reshape(-1, chain.samples.shape[-1])
+        model = get_model(self.model[i])
+        return pd.DataFrame({p.name: np.asarray(p.to_physical(flat[:, j]))
+                             for j, p in enumerate(model.params)})
+
+    def to_frame(self, ids=None) -> pd.DataFrame:
+        """One row per trial: method, converged, and per parameter each quantile, sd, tau, ESS."""
+        rows = []
+        for i in range(self.n_trials):
+            row = {"trial": i if ids is None else ids[i], "uq_method": self.method[i],
+                   "uq_reason": self.reason[i], "uq_converged": bool(self.converged[i]),
+                   "uq_acceptance": self.acceptance[i]}
+            for name, q in self.quantiles[i].items():
+                unit = PARAMS[name].unit
+                for key, v in zip(QUANTILES, q, strict=True):
+                    row[f"{name}_{key} [{unit}]"] = v
+                row[f"{name}_sd [{unit}]"] = self.sd[i][name]
+                row[f"{name}_tau [steps]"] = self.tau[i][name]
+                row[f"{name}_ess"] = self.ess[i][name]
+            rows.append(row)
+        return pd.DataFrame(rows)
+
+
+def posterior_summary(post: Posterior, ids=None) -> pd.DataFrame:
+    """Long table, one row per trial x parameter, for features and reports.
+
+    Columns: ``trial, model, param, unit, method, converged, median, sd, p2.5,
+    p16, p84, p97.5, tau, ess, acceptance`` (values in the parameter's unit).
+    Use ``median`` with ``sd`` (e.g. inverse-variance weights ``1/sd**2``) and
+    drop or down-weight rows with ``converged == False``.
+    """
+    rows = []
+    for i in range(post.n_trials):
+        for name, q in post.quantiles[i].items():
+            row = {"trial": i if ids is None else ids[i], "model": post.model[i], "param": name,
+                   "unit": PARAMS[name].unit, "method": post.method[i],
+                   "converged": bool(post.converged[i]), "sd": post.sd[i][name],
+                   "tau": post.tau[i][name], "ess": post.ess[i][name],
+                   "acceptance": post.acceptance[i]}
+            row.update(zip(QUANTILES, q, strict=True))
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def to_arviz(post: Posterior, i: int = 0):
+    """An ``arviz.InferenceData`` of trial ``i``'s emcee chains (physical units).
+
+    ``arviz.summary(to_arviz(post, i))`` gives its own ESS and R-hat per parameter.
+    """
+    chain = post.chains[i]
+    if chain is None:
+        raise ValueError(f"trial {i} has no emcee chain (method {post.method[i]!r})")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # arviz announces its refactor
+        import arviz as az
+    model = get_model(post.model[i])
+    # emcee chains are (step, walker, p); arviz wants (chain=walker, draw=step).
+    draws = {p.name: np.asarray(p.to_physical(chain.samples[:, :, j].T))
+             for j, p in enumerate(model.params)}
+    return az.from_dict(posterior=draws)
+
+
+def corner_plot(post: Posterior, i: int, path) -> None:
+    """Write a ``corner`` plot (PNG) of trial ``i``'s emcee posterior, physical units."""
+    import corner
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    draws = post.samples(i)
+    labels = [f"{n} [{PARAMS[n].unit}]" for n in draws.columns]
+    fig = corner.corner(draws.to_numpy(), labels=labels, quantiles=[0.16, 0.5, 0.84])
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
