@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+
 from frictionfit.uncertainty._ensemble import _Lockstep, run_lockstep
 
 
@@ -71,8 +72,9 @@ def test_lockstep_batches_all_running_trials_into_one_call(rng):
         return evaluate(U, idx)
 
     run_lockstep(counting, mean, cov, nwalkers=8, seed=0, max_steps=50, check_every=50)
-    # Every trial runs 50 steps here, so every call holds all four trials.
-    assert calls and set(calls) == {4}
+    # Moves need one (independence) or two (DE, half ensembles) calls per step, so
+    # trials finish after different numbers of calls; until then, calls hold all four.
+    assert max(calls) == 4 and np.median(calls) == 4
 
 
 def test_a_single_trial_is_evaluated_at_once():
