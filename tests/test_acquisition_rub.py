@@ -3,7 +3,8 @@ segments into motions and fits like simulated ones.
 
 The fake DAQ plays the contact model driven by a twin of the simulated gripper that
 receives the same schedule of commands, so the recorded force answers the recorded
-``move`` events (up to the few ms the commands are sent late).
+``move`` events (up to the few ms by which a command is sent late, which the fit's
+motor ``delay`` absorbs).
 """
 
 import json
@@ -62,7 +63,7 @@ def test_rub_writes_move_events_on_schedule(rubbed):
     events = [(e.kind, e.target) for e in rubbed.events]
     assert events == [("move", "p2"), ("move", "p1")] * 3
     late = np.array([e.t for e in rubbed.events]) - [t for t, _ in PROTOCOL.schedule()]
-    assert np.all(late >= 0) and np.all(late < 0.03)  # sent on time, within the loop's tick
+    assert np.all(late >= 0) and np.all(late < 0.02)  # on time, give or take a busy machine
     assert rubbed.metadata["label"] == "fake" and rubbed.duration_s > 3.0
     assert rubbed.extra["acquisition"]["frames_corrupted"] == 0
 
@@ -83,10 +84,14 @@ def test_rub_measurement_fits(rubbed):
 
     motions = segment(rubbed)
     y = np.stack([m.samples[:, 0] for m in motions])
-    m0 = motions[0]
-    res = fit_trials(y, m0.t, (m0.t_out, m0.t_back), model="stick_slip")
+    t = np.arange(y.shape[1]) / rubbed.sample_rate_hz
+    t_out = np.array([m.t_out for m in motions])
+    t_back = np.array([m.t_back for m in motions])
+    res = fit_trials(y, t, (t_out, t_back), model="stick_slip")
     assert [Status(s) for s in res.status] == [Status.CONVERGED] * 2
-    for values in res.values:
-        # the data are the same law plus 3-count noise: recover it within 10 %
-        assert values["f_kin"] == pytest.approx(TRUTH["f_kin"], rel=0.1)
-        assert values["k"] == pytest.approx(TRUTH["k"], rel=0.1)
+    # As in the team's measurement simulator, each motion starts from the state the
+    # previous one left (not at rest as the fit assumes), so only the sliding level is
+    # pinned down: f_kin within 5 %; the stiffness is not (reported, not asserted).
+    for values, r2 in zip(res.values, res.r2, strict=True):
+        assert values["f_kin"] == pytest.approx(TRUTH["f_kin"], rel=0.05)
+        assert r2 > 0.9

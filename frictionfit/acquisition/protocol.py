@@ -4,11 +4,15 @@ As in the rubbing-lab measurements: the fingers start closed at ``p1``; motion
 ``k`` sends ``move p2`` at ``start_s + 2 k dwell_s`` and ``move p1`` one
 ``dwell_s`` later; the recording ends ``dwell_s`` after the last command. Each
 command is written as an event ``{"t": ..., "kind": "move", "target": "p2"}``
-(plus the commanded ``position``) at the recording time it was sent.
+(plus the commanded ``position``) at the recording time it was sent; a command
+the actuator refuses ends the protocol with a ``protocol_error`` event.
 """
 
 from __future__ import annotations
 
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from frictionfit.acquisition.actuator import Actuator
@@ -51,16 +55,43 @@ class RubbingProtocol:
 
 
 class ProtocolRunner:
-    """Sends the protocol's commands when their time comes; use as ``record(on_tick=...)``."""
+    """Sends the protocol's commands on time from its own thread, logging each as an event.
 
-    def __init__(self, protocol: RubbingProtocol, actuator: Actuator) -> None:
-        self.protocol, self.actuator = protocol, actuator
-        self.pending = protocol.schedule()
+    Timing does not depend on the recording loop (disk flushes can take tens of ms):
+    the thread sleeps until each command is due on the recording clock.
+    """
 
-    def __call__(self, t: float, writer: RecordingWriter) -> None:
-        """At recording time ``t`` (s), send every command now due and log it."""
-        while self.pending and self.pending[0][0] <= t:
-            _, target = self.pending.pop(0)
+    def __init__(self, protocol: RubbingProtocol, actuator: Actuator,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.protocol, self.actuator, self.clock = protocol, actuator, clock
+        self.error: str | None = None
+        self._halt = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self, t0: float, writer: RecordingWriter) -> Callable[[], None]:
+        """Run the schedule against the recording clock ``clock() - t0`` (s); return a stop."""
+        self._thread = threading.Thread(target=self._run, args=(t0, writer),
+                                        name="rubbing protocol", daemon=True)
+        self._thread.start()
+        return self.stop
+
+    def _run(self, t0: float, writer: RecordingWriter) -> None:
+        for t_cmd, target in self.protocol.schedule():
+            if self._halt.wait(max(t_cmd - (self.clock() - t0), 0.0)):
+                return
             position = self.protocol.p2 if target == "p2" else self.protocol.p1
-            self.actuator.move_to(position)
+            t = self.clock() - t0
+            try:
+                self.actuator.move_to(position)
+            except Exception as exc:  # kept as an event in the sidecar; the recording goes on
+                self.error = f"move {target} at t={t:.3f} s failed: {exc}"
+                writer.add_event(Event(round(t, 6), "protocol_error", target,
+                                       {"detail": str(exc)}))
+                return
             writer.add_event(Event(round(t, 6), "move", target, {"position": position}))
+
+    def stop(self) -> None:
+        """Send no further command; wait for the thread."""
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join(2.0)

@@ -170,7 +170,7 @@ def record(
     duration_s: float | None,
     stop: threading.Event | None = None,
     metadata: dict[str, Any] | None = None,
-    on_tick: Callable[[float, RecordingWriter], None] | None = None,
+    on_start: Callable[[float, RecordingWriter], Callable[[], None]] | None = None,
     on_progress: Callable[[dict[str, Any]], None] | None = None,
     flush_s: float = FLUSH_S,
 ) -> dict[str, Any]:
@@ -186,9 +186,10 @@ def record(
         Seconds of host time to record; None runs until ``stop`` is set.
     stop : threading.Event, optional
         Set it (e.g. from a SIGINT/SIGTERM handler) to end cleanly.
-    on_tick : callable, optional
-        Called as ``on_tick(t, writer)`` every loop (about 100 Hz) with the recording
-        time ``t`` in s; the rubbing protocol sends its commands from here.
+    on_start : callable, optional
+        Called once as ``stop = on_start(t0, writer)`` when the recording starts, with
+        ``t0`` the host time (``time.monotonic()``) of sample 0; ``stop()`` is called at
+        the end. The rubbing protocol starts its command thread here.
     on_progress : callable, optional
         Called after every flush with the current ``acquisition`` summary.
 
@@ -212,6 +213,7 @@ def record(
     writer.start()
     last_flush = time.monotonic()
     status = "interrupted"
+    stop_hook = on_start(t0, writer) if on_start is not None else None
     try:
         while not stop.is_set():
             for i, s in enumerate(streams):
@@ -219,8 +221,6 @@ def record(
             live = [s.last_k for s in streams if s.connected and s.last_k is not None]
             writer.append(*merger.ready(min(live) + 1 if live else np.inf))
             now = time.monotonic()
-            if on_tick is not None:
-                on_tick(now - t0, writer)
             if now - last_flush >= flush_s:
                 writer.flush(_summary(streams, writer, "recording", started))
                 last_flush = now
@@ -231,6 +231,8 @@ def record(
                 break
             time.sleep(0.005)
     finally:
+        if stop_hook is not None:
+            stop_hook()
         for i, s in enumerate(streams):
             s.close()
             merger.add(i, *s.poll(t0))

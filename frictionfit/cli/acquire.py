@@ -48,7 +48,7 @@ def _progress(quiet: bool, duration: float | None):
 
 
 def _run(streams: list[Any], out: Path, duration: float | None, quiet: bool,
-         metadata: dict[str, Any], on_tick: Any = None) -> dict[str, Any]:
+         metadata: dict[str, Any], on_start: Any = None) -> dict[str, Any]:
     """Record with SIGINT/SIGTERM ending the recording cleanly; print the summary."""
     import signal
     import threading
@@ -60,7 +60,7 @@ def _run(streams: list[Any], out: Path, duration: float | None, quiet: bool,
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         acq = record(streams, out, duration_s=duration, stop=stop, metadata=metadata,
-                     on_tick=on_tick, on_progress=_progress(quiet, duration))
+                     on_start=on_start, on_progress=_progress(quiet, duration))
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -161,9 +161,12 @@ def rub(
                                  "actuator": actuator}}
             if label is not None:
                 meta["label"] = label
-            _run(streams, out, protocol.duration_s, quiet, meta, ProtocolRunner(protocol, drive))
+            runner = ProtocolRunner(protocol, drive)
+            _run(streams, out, protocol.duration_s, quiet, meta, runner.start)
         finally:
             drive.close()
+        if runner.error is not None:
+            raise AcquisitionError(f"{actuator}: {runner.error} (the recording is kept)")
     except AcquisitionError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
