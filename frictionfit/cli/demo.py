@@ -1,4 +1,4 @@
-"""``frictionfit demo``: simulate a measurement with known truth, read it back, fit it."""
+"""``frictionfit demo``: read the sample data in ``data/``, segment, fit, compare with truth."""
 
 from __future__ import annotations
 
@@ -6,39 +6,71 @@ from pathlib import Path
 
 import typer
 
+#: The sample set shipped in ``data/``; ``frictionfit simulate`` remakes it with these.
+SAMPLE = {"seed": 2026, "sessions": 1, "measurements_per_class": 1,
+          "classes": ("paper-1", "paper-2", "cushion-1", "aluminium-foil-1")}
+SAMPLE_COMMAND = ("frictionfit simulate --out data --seed 2026 --sessions 1 "
+                  "--measurements-per-class 1 --classes paper-1,paper-2,cushion-1,aluminium-foil-1")
+
+
+def _sample_recordings(data: Path, out: Path) -> list:
+    from frictionfit.recording import read_dataset
+    from frictionfit.simulation.measurements import simulate_dataset
+
+    if not any(data.glob("*.csv")):
+        typer.echo(f"no sample data in {data}; simulating it into {out / 'data'} "
+                   f"(same as `{SAMPLE_COMMAND}`)")
+        data = out / "data"
+        simulate_dataset(data, SAMPLE["seed"], SAMPLE["sessions"],
+                         SAMPLE["measurements_per_class"], SAMPLE["classes"])
+    return read_dataset(data)
+
 
 def demo(
-    out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's files."),
-    seed: int = typer.Option(0, help="Seed of the simulation."),
+    data: Path = typer.Option(Path("data"), help="Folder of sample recordings."),
+    out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
+    channel: str = typer.Option("index_x", help="Channel to fit."),
+    model: str = typer.Option("relaxation", help="Model of the family to fit, or 'auto'."),
 ) -> None:
-    """Write a 4-motion simulated measurement, fit the relaxation model, compare with truth."""
+    """Segment the sample measurements, fit every motion, and compare with the simulator's truth."""
     import numpy as np
 
     from frictionfit.fit import fit_report, fit_trials
-    from frictionfit.recording import Event, Recording, read_recording, write_recording
     from frictionfit.segmentation import segment
-    from frictionfit.simulation.trials import simulate_trials
 
-    ts = simulate_trials("relaxation", 5, seed=seed, snr_db=25.0)
-    index_x = (ts.direction[:, None] * (ts.y - ts.truth["offset"][:, None])).ravel()
-    samples = np.stack([index_x + 0.3, -0.8 * index_x - 0.2], axis=1)
-    events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
-              for k in range(5) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
-    truth = {n: v.tolist() for n, v in ts.truth.items()}
-    rec = Recording.from_arrays(samples, 1000.0, ["index_x", "thumb_x"], events=events,
-                                metadata={"label": "demo-1", "session": 1, "trial": 1},
-                                truth=truth, name="demo")
-    path = write_recording(rec, out / "demo")
-    rec = read_recording(path)
-    motions = segment(rec)
-    typer.echo(f"wrote {path}: {rec.n_samples} samples, {len(motions)} motions after the "
-               "preparatory one")
-    y = np.stack([m.samples[:, 0] for m in motions])
-    result = fit_trials(y, motions[0].t, (motions[0].t_out, motions[0].t_back),
-                        model="relaxation")
-    result.to_frame([f"motion{m.index}" for m in motions]).to_csv(out / "fits.csv", index=False)
-    typer.echo(fit_report(result, 0))
-    typer.echo("\nparameter        truth(motion1)   fitted")
-    for name in ("f_kin", "f_static_excess", "relax_frac", "tau"):
-        typer.echo(f"{name:16s} {ts.truth[name][1]:12.4g}   {result.values[0][name]:.4g}")
+    out.mkdir(parents=True, exist_ok=True)
+    recs = _sample_recordings(data, out)
+    typer.echo(f"read {len(recs)} recordings: {', '.join(r.name for r in recs)}")
+    rows, ids, truths, worst = [], [], [], 0.0
+    for rec in recs:
+        j = rec.channel_names.index(channel)
+        for m in segment(rec):
+            rows.append(m.samples[:, j])
+            ids.append(f"{rec.name}/motion{m.index}")
+            tm = rec.truth["motions"][m.index] if rec.truth else None
+            truths.append(tm["channels"][channel] if tm else {})
+            if tm:
+                found = [m.t0 + p.start_s for p in m.phases[::2]] + [m.t0 + m.phases[0].stop_s,
+                                                                     m.t0 + m.phases[2].stop_s]
+                true = [tm["move_out"][0], tm["move_back"][0], tm["move_out"][1],
+                        tm["move_back"][1]]
+                worst = max(worst, float(np.max(np.abs(np.subtract(found, true)))))
+    typer.echo(f"segmented {len(rows)} motions (the preparatory one dropped); largest phase "
+               f"boundary error against the simulator's motor: {worst * 1e3:.1f} ms")
+    m0 = segment(recs[0])[0]
+    result = fit_trials(np.stack(rows), m0.t, (m0.t_out, m0.t_back), model=model)
+    result.to_frame(ids).to_csv(out / "fits.csv", index=False)
+    typer.echo("\n" + fit_report(result, 0))
+    typer.echo(f"\ntruth vs fit ({channel}, median over motions; the simulator adds effects the "
+               "model lacks: motor profile, drag, history from the previous stroke)")
+    names = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
+    typer.echo(f"{'recording':22s} " + " ".join(f"{n:>17s}" for n in names))
+    for rec in recs:
+        sel = [i for i, name in enumerate(ids) if name.startswith(rec.name + "/")]
+        cells = []
+        for n in names:
+            true = np.median([truths[i].get(n, np.nan) for i in sel])
+            fit = np.median([result.values[i][n] for i in sel]) if n in result.values[0] else np.nan
+            cells.append(f"{true:8.3g}/{fit:<8.3g}")
+        typer.echo(f"{rec.name:22s} " + " ".join(cells))
     typer.echo(f"\nall fits: {out / 'fits.csv'}")
