@@ -14,6 +14,9 @@ def fit(
     solver: str = typer.Option("lm", help="lm, dogleg or gauss-newton."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
     report: bool = typer.Option(False, help="Print the fit report of the first trial."),
+    uncertainty: str = typer.Option("none", help="Posterior per trial: none, laplace, emcee "
+                                    "or auto (Laplace; emcee where Laplace is doubtful)."),
+    chains: Path = typer.Option(None, help="With emcee: save the chains to this HDF5 file."),
 ) -> None:
     """Fit every non-preparatory motion x channel; one row per trial with status and stderr."""
     import numpy as np
@@ -23,6 +26,9 @@ def fit(
     from frictionfit.recording import read_recording
     from frictionfit.segmentation import segment
 
+    if uncertainty not in ("none", "laplace", "emcee", "auto"):
+        raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
+                                 param_hint="--uncertainty")
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
     ys, t_outs, t_backs, ids, t = [], [], [], [], None
     for f in files:
@@ -49,6 +55,12 @@ def fit(
     result = fit_trials(np.asarray(ys), t, (np.asarray(t_outs), np.asarray(t_backs)),
                         model=model, solver=solver)
     frame = result.to_frame(ids)
+    if uncertainty != "none":
+        from frictionfit.uncertainty import sample_posterior
+
+        post = sample_posterior(result, np.asarray(ys), t, (np.asarray(t_outs),
+                                np.asarray(t_backs)), method=uncertainty, chains_path=chains)
+        frame = frame.merge(post.to_frame(ids), on="trial")
     if out.suffix == ".parquet":
         frame.to_parquet(out)
     else:
