@@ -1,4 +1,4 @@
-"""Rubbing feature sets (handcrafted, fftbins, raw, physical measured) against hand-computed values."""
+"""Rubbing feature sets (handcrafted, fftbins, raw, physical measured) vs hand-computed values."""
 
 from __future__ import annotations
 
