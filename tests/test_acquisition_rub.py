@@ -95,3 +95,40 @@ def test_rub_measurement_fits(rubbed):
     for values, r2 in zip(res.values, res.r2, strict=True):
         assert values["f_kin"] == pytest.approx(TRUTH["f_kin"], rel=0.05)
         assert r2 > 0.9
+
+
+def test_rub_drives_a_dynamixel(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    from frictionfit.acquisition.actuator import DynamixelActuator
+
+    with FakeDynamixel() as servo, FakeOptoForce(tmp_path / "tty"):
+        result = CliRunner().invoke(app, [
+            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", servo.url, "--p1", "1000",
+            "--p2", "1200", "--motions", "2", "--dwell", "0.2", "--out", str(tmp_path / "rub"),
+            "--quiet"])
+        assert result.exit_code == 0, result.output
+        assert servo.goals == [1000, 1200, 1000, 1200, 1000]  # p1 first, then the schedule
+        assert servo.table[64] == b"\x01"  # torque on
+        actuator = DynamixelActuator(servo.url)
+        try:
+            assert actuator.position() == 1000.0
+        finally:
+            actuator.close()
+    rec = read_recording(tmp_path / "rub")
+    assert [e.extra["position"] for e in rec.events] == [1200.0, 1000.0, 1200.0, 1000.0]
+
+
+def test_refused_command_is_an_event_and_an_error(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel() as servo, FakeOptoForce(tmp_path / "tty"):
+        result = CliRunner().invoke(app, [
+            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", servo.url, "--p1", "1000",
+            "--p2", "5000", "--motions", "1", "--dwell", "0.2", "--out", str(tmp_path / "rub"),
+            "--quiet"])
+    assert result.exit_code == 1
+    assert "goal position 5000 is outside the servo's limits 0..4095" in result.output
+    assert "the recording is kept" in result.output
+    rec = read_recording(tmp_path / "rub")
+    assert [(e.kind, e.target) for e in rec.events] == [("protocol_error", "p2")]

@@ -1,0 +1,78 @@
+"""A fake Dynamixel X-series servo on a pty, answering Protocol 2.0 (reference section 10)."""
+
+from __future__ import annotations
+
+import os
+import pty
+import struct
+import threading
+import time
+import tty
+
+from frictionfit.acquisition.dynamixel import PING, READ, STATUS, WRITE, Packet, PacketParser
+
+MODEL_XM430_W350 = 1020
+
+
+class FakeDynamixel:
+    """Servo ``servo_id`` at ``self.url``; logs every goal position it is sent.
+
+    The present position follows the goal at ``speed`` counts per second.
+    """
+
+    def __init__(self, servo_id: int = 1, position: int = 2048, speed: float = 2000.0) -> None:
+        self.servo_id, self.speed = servo_id, speed
+        self.table = {0: struct.pack("<H", MODEL_XM430_W350), 64: b"\x00",
+                      116: struct.pack("<i", position), 132: struct.pack("<i", position)}
+        self.goals: list[int] = []
+        self._master, self._slave = pty.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.url = os.ttyname(self._slave)
+        self._halt = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="fake dynamixel", daemon=True)
+        self._last = time.monotonic()
+
+    def _advance(self) -> None:
+        now = time.monotonic()
+        step, self._last = self.speed * (now - self._last), now
+        pos = struct.unpack("<i", self.table[132])[0]
+        goal = struct.unpack("<i", self.table[116])[0]
+        pos = goal if abs(goal - pos) <= step else pos + int(step) * (1 if goal > pos else -1)
+        self.table[132] = struct.pack("<i", pos)
+
+    def _reply(self, pkt: Packet) -> bytes:
+        if pkt.instruction == PING:
+            return self.table[0] + b"\x2e"
+        addr = struct.unpack_from("<H", pkt.params)[0]
+        if pkt.instruction == READ:
+            self._advance()
+            return self.table[addr][: struct.unpack_from("<H", pkt.params, 2)[0]]
+        if pkt.instruction == WRITE:
+            self.table[addr] = pkt.params[2:]
+            if addr == 116:
+                self.goals.append(struct.unpack("<i", pkt.params[2:])[0])
+        return b""
+
+    def _run(self) -> None:
+        parser = PacketParser()
+        while not self._halt.is_set():
+            try:
+                data = os.read(self._master, 4096)
+            except OSError:  # nothing to read yet
+                time.sleep(0.001)
+                continue
+            for pkt in parser.feed(data):
+                if pkt.id == self.servo_id and pkt.instruction != STATUS:
+                    reply = Packet(self.servo_id, STATUS, b"\x00" + self._reply(pkt))
+                    os.write(self._master, reply.encode())
+
+    def __enter__(self) -> FakeDynamixel:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._halt.set()
+        self._thread.join(5)
+        os.close(self._master)
+        os.close(self._slave)
