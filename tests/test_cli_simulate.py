@@ -1,0 +1,74 @@
+"""``simulate``, ``simulate gestures``, ``plot`` and ``info`` through typer's CliRunner."""
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from frictionfit.cli import app
+from frictionfit.recording import read_dataset
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim")
+    result = runner.invoke(app, ["simulate", "--out", str(out), "--seed", "1", "--sessions", "2",
+                                 "--measurements-per-class", "1", "--classes",
+                                 "paper-1,cushion-1", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    return out, result.output
+
+
+def test_simulate_writes_the_contract_layout(simulated):
+    out, output = simulated
+    assert "wrote 4 measurements (2 classes, 2 session(s))" in output
+    recs = read_dataset(out)
+    assert sorted(r.name for r in recs) == ["s1_cushion-1_01", "s1_paper-1_01",
+                                           "s2_cushion-1_01", "s2_paper-1_01"]
+    assert all(r.truth["seed"] == 1 and len(r.truth["motions"]) == 5 for r in recs)
+    assert all(np.isfinite(r.samples).mean() > 0.95 for r in recs)
+
+
+def test_simulate_rejects_unknown_classes_and_missing_out(tmp_path):
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path), "--classes", "silk-1"])
+    assert result.exit_code == 2
+    assert "unknown class(es) ['silk-1']" in result.output
+    result = runner.invoke(app, ["simulate"])
+    assert result.exit_code == 2 and "--out DIR is required" in result.output
+
+
+def test_simulate_gestures(tmp_path):
+    result = runner.invoke(app, ["simulate", "gestures", "--out", str(tmp_path), "--seed", "2",
+                                 "--people", "1", "--repetitions", "1", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "wrote 7 synthetic gestures" in result.output
+    assert len(list(tmp_path.glob("p0_*_00.npz"))) == 7
+
+
+def test_plot_writes_a_png(simulated, tmp_path):
+    out, _ = simulated
+    png = tmp_path / "rec.png"
+    for extra in ([], ["--no-events"]):
+        result = runner.invoke(app, ["plot", str(out / "s1_paper-1_01.csv"), "--out", str(png),
+                                     *extra])
+        assert result.exit_code == 0, result.output
+        assert "5 motions shaded" in result.output
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_and_info_name_a_missing_file(tmp_path):
+    for cmd in ("plot", "info"):
+        result = runner.invoke(app, [cmd, str(tmp_path / "nothing.csv")])
+        assert result.exit_code == 2
+        assert "sidecar file is missing" in result.output
+
+
+def test_info_counts_labels_and_sessions(simulated):
+    out, _ = simulated
+    result = runner.invoke(app, ["info", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "4 recordings, 2 labels, 2 session(s)" in result.output
+    assert any(line.split() == ["paper-1", "1", "1", "2"] for line in result.output.splitlines())
+    result = runner.invoke(app, ["info", str(out / "s1_paper-1_01")])
+    assert result.exit_code == 0 and "events: 10 (first move p2 at 0.05 s)" in result.output
