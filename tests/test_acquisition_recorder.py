@@ -192,3 +192,15 @@ def test_power_cut_mid_line_still_reads(tmp_path):
     info = CliRunner().invoke(app, ["info", str(tmp_path / "cut")])
     assert info.exit_code == 0, info.output
     assert "problem [nonfinite]: channel 's1_y'" in info.output
+
+
+def test_333_hz_uses_the_exact_rate_and_the_counter_step(tmp_path):
+    with FakeOptoForce(tmp_path / "tty") as fake:
+        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--rate", "333", "--duration", "1", "--out",
+                                          str(tmp_path / "rec"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rec")  # clean: no gap, the rate matches
+    assert rec.sample_rate_hz == pytest.approx(1000 / 3)
+    assert fake.configs[-2].speed == 3  # the last one is the stop (speed 0)
+    assert rec.extra["acquisition"]["samples_lost"] == 0 and rec.n_samples == fake.frames_sent

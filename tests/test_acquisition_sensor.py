@@ -116,3 +116,24 @@ def test_socket_url_works_like_a_port():
         sensor.close()
         thread.join()
         server.close()
+
+
+def test_real_daq_when_given_one():
+    """Set FRICTIONFIT_OPTOFORCE_PORT (e.g. /dev/ttyACM0) to run this on hardware."""
+    import os
+
+    url = os.environ.get("FRICTIONFIT_OPTOFORCE_PORT")
+    if not url:
+        pytest.skip("no real DAQ: set FRICTIONFIT_OPTOFORCE_PORT to a port to test on hardware")
+    sensor = OptoForceSensor(url)
+    sensor.open()
+    try:
+        sensor.query_serial()
+        sensor.configure(100, filter_code=4)
+        sensor.start()
+        time.sleep(0.5)
+        frames = sensor.frames()
+    finally:
+        sensor.stop()
+        sensor.close()
+    assert 30 < len(frames) < 70 and sensor.parser.frames_corrupted == 0

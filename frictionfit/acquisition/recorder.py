@@ -203,8 +203,13 @@ def record(
     if len(rates) != 1:
         raise AcquisitionError(f"all sensors must run at one rate, got {sorted(rates)} Hz")
     rate = rates.pop()
-    for s in streams:
-        s.wait_first_frame()
+    try:
+        for s in streams:
+            s.wait_first_frame()
+    except AcquisitionError:
+        for s in streams:
+            s.close()
+        raise
     t0 = min(s.first_frame_time for s in streams)
     writer = RecordingWriter(out, [c for s in streams for c in s.channels], rate,
                              {**(metadata or {}), "ports": [s.url for s in streams]})

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from frictionfit.acquisition.frames import DataFrame, axis_names
-from frictionfit.acquisition.sensor import OptoForceSensor
+from frictionfit.acquisition.sensor import OptoForceSensor, speed_code
 from frictionfit.errors import AcquisitionError
 from frictionfit.recording import Channel
 
@@ -49,7 +49,8 @@ class SensorStream:
     name : str
         Prefix of the channel names (``<name>_x``, ``<name>_y``, ...).
     rate_hz : float
-        Nominal rate, one of the DAQ's (1000, 333, 100, 30, 10 Hz).
+        Nominal rate, one of the DAQ's (1000, 333, 100, 30, 10 Hz); kept exactly as
+        ``1000 / speed code`` (333 Hz is 1000/3 Hz).
     filter_code, zero :
         Passed to :meth:`OptoForceSensor.configure`.
     sensitivity : path, optional
@@ -61,7 +62,8 @@ class SensorStream:
     def __init__(self, url: str, name: str, rate_hz: float, *, filter_code: int = 0,
                  zero: bool = False, sensitivity: str | Path | None = None,
                  retry_s: float = 0.25, clock: Callable[[], float] = time.monotonic) -> None:
-        self.url, self.name, self.rate_hz = url, name, float(rate_hz)
+        self.url, self.name = url, name
+        self.rate_hz = 1000.0 / speed_code(rate_hz)  # exact: 333 Hz is 1000/3
         self.filter_code, self.zero, self.sensitivity = filter_code, zero, sensitivity
         self.retry_s, self.clock = retry_s, clock
         self.sensor: OptoForceSensor | None = None
