@@ -1,0 +1,80 @@
+"""Sliding physical features: drive, stick-slip statistics, texture-not-mounting invariance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from frictionfit.datasets.fabricslide import PROXIMITY, TAXELS
+from frictionfit.errors import RecordingError
+from frictionfit.features.sliding import SlidingPhysicalFeatures, slide_drive, steady_features
+from frictionfit.recording import Recording
+
+RATE_HZ = 35.6
+SPEED = -100.0  # mm/s
+RAMP_S = 47.1 / abs(SPEED)
+STICK_SLIP_HZ = 1.5
+
+
+def slide(rng, offsets=None, proximity=None, name="Canvas_F150_V-100mmps_0") -> Recording:
+    """A synthetic slide: sawtooth stick-slip (slow loading, fast slip) on every taxel."""
+    n = int(594.2 / abs(SPEED) * RATE_HZ)
+    t = np.arange(n) / RATE_HZ
+    travel = slide_drive(t, SPEED, RAMP_S)
+    breakaway = 40 * np.minimum(travel / 5.0, 1.0) * (1 + np.exp(-travel / 4.0))
+    saw = (t * STICK_SLIP_HZ) % 1.0
+    gains = rng.uniform(0.5, 2.0, 16)
+    taxels = 150 + breakaway[:, None] + 15 * saw[:, None] * gains + rng.normal(0, 1, (n, 16))
+    if offsets is not None:
+        taxels = taxels + offsets
+    prox = np.column_stack([np.full(n, 40.0), np.full(n, 65535.0)]) if proximity is None \
+        else proximity
+    meta = {"label": "Canvas", "dataset": "fabricslide", "speed": SPEED, "ramp_s": RAMP_S}
+    return Recording.from_arrays(np.hstack([taxels, prox]), RATE_HZ, [*TAXELS, *PROXIMITY],
+                                 units="counts", metadata=meta, name=name)
+
+
+def test_slide_drive_ramp_reaches_30_mm_with_continuous_velocity():
+    t = np.linspace(0, 2 * RAMP_S, 2001)
+    x = slide_drive(t, SPEED, RAMP_S)
+    assert x[0] == 0 and np.all(np.diff(x) > 0)
+    assert slide_drive(np.array([RAMP_S]), SPEED, RAMP_S)[0] == pytest.approx(29.985, abs=1e-3)
+    v = np.gradient(x, t)
+    np.testing.assert_allclose(v[1000], abs(SPEED), rtol=1e-3)  # at the end of the ramp
+    np.testing.assert_allclose(v[-1], abs(SPEED), rtol=1e-9)
+
+
+def test_steady_features_recover_stick_slip_period_and_asymmetry():
+    rec = slide(np.random.default_rng(1))
+    period_s, period_mm, amplitude, asymmetry, events = steady_features(rec)[:5]
+    # Welch resolution over the ~150 steady samples is 35.6 / 150 = 0.24 Hz: ~16 % of 1.5 Hz.
+    assert period_s == pytest.approx(1 / STICK_SLIP_HZ, rel=0.17)
+    assert period_mm == pytest.approx(abs(SPEED) * period_s, rel=1e-12)
+    assert asymmetry < -1.0  # slow loading, fast slip
+    assert 0.2 < amplitude < 0.5  # sd of a sawtooth over its 5-95 % range is ~0.32
+    # one slip every 100 / 1.5 = 67 mm of travel -> 1.5 per 100 mm
+    assert events == pytest.approx(1.5, abs=0.5)
+
+
+def test_features_ignore_taxel_offsets_and_proximity():
+    rng = np.random.default_rng(2)
+    base = slide(np.random.default_rng(3))
+    offsets = rng.uniform(-80, 300, 16)
+    prox = rng.integers(0, 1536, size=(base.n_samples, 2)).astype(float)
+    moved = slide(np.random.default_rng(3), offsets=offsets, proximity=prox, name="moved")
+    f = SlidingPhysicalFeatures(cache=False).fit([base])
+    x = f.transform([base, moved])
+    assert x.shape == (2, len(f.get_feature_names_out()))
+    assert np.isfinite(x).all()
+    np.testing.assert_allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
+    names = list(f.get_feature_names_out())
+    assert names[:2] == ["sliding:log_loading_stiffness [1/mm]",
+                         "sliding:log_static_kinetic_ratio [1]"]
+    assert len(set(names)) == len(names) == 9 + 5 + 16 + 8 * 16
+
+
+def test_recording_without_speed_is_rejected_by_name(rng):
+    rec = Recording.from_arrays(rng.normal(size=(200, 16)), RATE_HZ, list(TAXELS), name="odd",
+                                metadata={"dataset": "fabricslide"})
+    with pytest.raises(RecordingError, match="odd: metadata lacks a non-zero sliding 'speed'"):
+        steady_features(rec)
