@@ -162,7 +162,8 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     assert rec.extra["acquisition"]["status"] == "recording"  # never finalised: it crashed
 
 
-def test_sigterm_stops_cleanly(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_sigterm_and_ctrl_c_stop_cleanly(tmp_path, sig):
     out = tmp_path / "rec"
     with FakeOptoForce(tmp_path / "tty") as fake:
         proc = subprocess.Popen([*CLI, "acquire", "--port", str(tmp_path / "tty"),
@@ -171,7 +172,7 @@ def test_sigterm_stops_cleanly(tmp_path):
         try:
             _wait_for_rows(out.with_suffix(".csv"), 500)
         finally:
-            os.kill(proc.pid, signal.SIGTERM)
+            os.kill(proc.pid, sig)
             stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 0, stderr
     rec = read_recording(out)

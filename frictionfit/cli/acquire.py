@@ -93,9 +93,9 @@ def acquire(
 ) -> None:
     """Record OptoForce sensors losslessly into the interchange format.
 
-    Data reach the disk every 0.25 s, so a crash or a pulled cable loses at most
-    that; the port is reopened when it comes back, and the gap is listed in the
-    sidecar's ``acquisition`` object. Ctrl-C or SIGTERM end the recording cleanly.
+    Data reach the disk every 0.25 s, so a crash loses at most that. A pulled cable
+    loses what was in flight; the port is reopened when it comes back and the gap is
+    listed in the sidecar's ``acquisition`` object. Ctrl-C or SIGTERM end cleanly.
     """
     from frictionfit.errors import AcquisitionError
 
