@@ -99,11 +99,12 @@ class SensorStream:
         except AcquisitionError:
             sensor.close()
             raise
-        if self.serial_number is not None and serial_number != self.serial_number:
+        if None not in (self.serial_number, serial_number) and (
+                serial_number != self.serial_number):
             sensor.close()
             raise AcquisitionError(f"{self.url}: sensor {serial_number!r} answered where "
                                    f"{self.serial_number!r} was recording")
-        self.serial_number = serial_number
+        self.serial_number = self.serial_number or serial_number
         sensor.start()
         self.sensor, self._new_link, self._down_since = sensor, True, None
 
