@@ -171,19 +171,22 @@ def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign:
     """Movement stop (samples): end of the deceleration drop, searched ``span`` s after start.
 
     A drop is a candidate where the signal runs against the loading direction
-    (``sign``) over 8 ms and is flat-ish in the 16 ms before and after. ``last``: take
+    (``sign``) over 6-18 ms and is flat-ish in the 12 ms before and after. ``last``: take
     the latest candidate above ``10 noise`` (the deceleration ends the movement; an
     earlier one is the slip-weakening drop after the static peak); else the strongest.
     """
     a, b = int(start + span[0] * rate), min(int(start + span[1] * rate), s.size - int(0.03 * rate))
     if b - a < 10:
         return None
-    k = int(0.008 * rate)
+    k = int(0.012 * rate)
     idx = np.arange(a, b)
-    before = sign * (s[idx] - s[idx - k])  # the drop: against the direction of the rise
-    after = np.abs(s[idx + 2 * k] - s[idx])
-    ahead = np.abs(s[idx - k] - s[np.maximum(idx - 3 * k, 0)])  # sliding: flat before the drop
-    score = -before - 0.5 * (after + ahead)
+    after = np.abs(s[idx + k] - s[idx])
+    score = np.full(idx.size, -np.inf)
+    for w in (0.006, 0.01, 0.014, 0.018):  # the deceleration lasts as long as the acceleration
+        n = int(w * rate)
+        drop = -sign * (s[idx] - s[idx - n])  # against the direction of the rise
+        ahead = np.abs(s[idx - n] - s[np.maximum(idx - n - k, 0)])  # sliding: flat before
+        score = np.maximum(score, drop - ahead - after)
     peaks = np.flatnonzero((score >= max(0.05 * score.max(), 10 * noise))
                            & (score == maximum_filter1d(score, 2 * k + 1, mode="nearest")))
     c = int(idx[peaks[-1]]) if last and peaks.size else int(idx[np.argmax(score)])
