@@ -5,7 +5,10 @@ chunks, one or more per worker thread; every chunk runs the ordinary
 :func:`frictionfit.fit.fit_trials` on a worker (itself batched and vmapped), and
 the per-chunk results are concatenated back in trial order. A trial's result
 does not depend on which chunk it lands in, so the distributed fit returns the
-same numbers as the local one.
+same numbers as the local one, up to rounding (a different batch shape can
+change XLA's vectorisation in the last bit); the one exception is ``n_starts > 1``, whose
+extra starting points are jittered per batch, so a chunk draws other (equally
+distributed) jitters than the whole batch would.
 
 ``scheduler`` is a ``distributed.Client`` or a scheduler address
 (``"tcp://host:8786"``); a client made from an address is closed afterwards.
@@ -24,21 +27,34 @@ import pandas as pd
 from frictionfit.errors import FitError
 from frictionfit.fit import FitResult, fit_trials
 
-__all__ = ["concat_results", "fit_distributed", "map_chunks", "partition"]
+__all__ = ["concat_results", "fit_distributed", "map_chunks", "partition", "take_trials"]
 
 
-def partition(n_trials: int, n_chunks: int) -> list[slice]:
+def partition(n_trials: int, n_chunks: int, groups=None) -> list[slice]:
     """Contiguous, nearly equal slices covering ``range(n_trials)`` (no empty ones).
+
+    With ``groups`` (one label per trial, each group contiguous), a cut never
+    splits a group, so tied parameters see their whole group.
 
     Examples
     --------
     >>> partition(5, 2)
     [slice(0, 3, None), slice(3, 5, None)]
+    >>> partition(5, 2, groups=["a", "a", "a", "a", "b"])
+    [slice(0, 4, None), slice(4, 5, None)]
     """
     if n_trials < 1 or n_chunks < 1:
         raise FitError(f"cannot partition {n_trials} trials into {n_chunks} chunks")
-    bounds = np.linspace(0, n_trials, min(n_chunks, n_trials) + 1).round().astype(int)
-    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    cuts = np.linspace(0, n_trials, min(n_chunks, n_trials) + 1).round().astype(int)
+    if groups is not None:
+        groups = np.asarray(groups)
+        starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
+        if starts.size != np.unique(groups).size:
+            raise FitError("groups must be contiguous to be distributed: sort the trials by "
+                           "group first")
+        allowed = np.r_[starts, n_trials]
+        cuts = np.unique(allowed[np.searchsorted(allowed, cuts)])  # snap each cut forward
+    return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
 
 
 def _connect(scheduler):
@@ -85,7 +101,7 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
         futures = [
             client.submit(func, **{k: None if v is None else v[rows] for k, v in per_trial.items()},
                           **shared, pure=False)
-            for rows in partition(n_trials, n_chunks)
+            for rows in partition(n_trials, n_chunks, per_trial.get("groups"))
         ]
         return client.gather(futures)
     finally:
@@ -94,40 +110,68 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
 
 
 def _concat(values: list, name: str):
+    """Per-trial fields are concatenated; per-batch settings must agree across chunks."""
     first = values[0]
-    if first is None:
-        return None
     if isinstance(first, np.ndarray):
         return np.concatenate(values)
     if isinstance(first, pd.DataFrame):
         return pd.concat(values, ignore_index=True)
     if isinstance(first, list):
         return [row for part in values for row in part]
-    if isinstance(first, (int, float)):  # per-batch numbers such as wall_s add up
-        return sum(values)
-    raise FitError(f"cannot concatenate FitResult field {name!r} of type {type(first).__name__}")
+    if isinstance(first, tuple):  # e.g. (t_out, t_back) per trial
+        return tuple(_concat(list(items), name) for items in zip(*values, strict=True))
+    if all(v == first for v in values):  # None, solver name, stroke, ...
+        return first
+    raise FitError(f"chunks disagree on the per-batch FitResult field {name!r}: {values}")
 
 
 def concat_results(parts: Sequence[FitResult], wall_s: float | None = None) -> FitResult:
     """One :class:`FitResult` from per-chunk results, rows in the order given.
 
-    Per-trial fields (arrays, lists, tables) are concatenated; per-batch numbers
-    add up, except ``wall_s`` when given (the wall time of the whole call, s).
+    Per-trial fields (arrays, lists, tables) are concatenated and per-batch
+    settings (solver, drive, ...) carried over; ``wall_s`` is the given wall time
+    of the whole call (s), or the sum over the chunks.
     """
     merged = {f.name: _concat([getattr(p, f.name) for p in parts], f.name)
-              for f in dataclasses.fields(FitResult) if f.init}
-    if wall_s is not None:
-        merged["wall_s"] = wall_s
+              for f in dataclasses.fields(FitResult) if f.init and f.name != "wall_s"}
+    merged["wall_s"] = sum(p.wall_s for p in parts) if wall_s is None else wall_s
     return FitResult(**merged)
+
+
+def _take(value, rows: np.ndarray, n_trials: int):
+    """Rows of a per-trial field (array, list, table, tuple of them); other values unchanged."""
+    if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == n_trials:
+        return value[rows]
+    if isinstance(value, list) and len(value) == n_trials:
+        return [value[i] for i in rows]
+    if isinstance(value, pd.DataFrame) and len(value) == n_trials:
+        return value.iloc[rows].reset_index(drop=True)
+    if isinstance(value, tuple):
+        return tuple(_take(v, rows, n_trials) for v in value)
+    return value
+
+
+def take_trials(result: FitResult, rows) -> FitResult:
+    """The trials ``rows`` (indices or a slice) of a :class:`FitResult`; ``concat_results`` undone.
+
+    ``wall_s`` is shared out in proportion to the trials kept.
+    """
+    n = result.n_trials
+    idx = np.arange(n)[rows] if isinstance(rows, slice) else np.asarray(rows, dtype=int)
+    kept = {f.name: _take(getattr(result, f.name), idx, n)
+            for f in dataclasses.fields(FitResult) if f.init}
+    kept["wall_s"] = result.wall_s * idx.size / max(n, 1)
+    return FitResult(**kept)
 
 
 def _per_trial(value, n_trials: int) -> np.ndarray:
     return np.broadcast_to(np.asarray(value, dtype=np.float64), (n_trials,)).copy()
 
 
-def _fit_chunk(y, t_out, t_back, displacement, direction, u0, *, t, drive, fit_kwargs):
+def _fit_chunk(y, t_out, t_back, displacement, direction, u0, groups, *, t, drive, fit_kwargs):
     drive_input = (t_out, t_back) if drive == "events" else displacement
-    return fit_trials(y, t, drive_input, drive=drive, direction=direction, u0=u0, **fit_kwargs)
+    return fit_trials(y, t, drive_input, drive=drive, direction=direction, u0=u0, groups=groups,
+                      **fit_kwargs)
 
 
 def fit_distributed(
@@ -140,14 +184,16 @@ def fit_distributed(
     drive: str = "events",
     direction=None,
     u0=None,
+    groups=None,
     **fit_kwargs,
 ) -> FitResult:
     """:func:`frictionfit.fit.fit_trials` with the trials partitioned across a Dask cluster.
 
     Parameters
     ----------
-    y, t, drive_input, drive, direction, u0
-        As for :func:`~frictionfit.fit.fit_trials` (force in N, times in s).
+    y, t, drive_input, drive, direction, u0, groups
+        As for :func:`~frictionfit.fit.fit_trials` (force in N, times in s); with
+        ``groups`` (tied parameters) no group is split across chunks.
     scheduler : distributed.Client or str
         A connected client, or the scheduler's address.
     n_chunks : int, optional
@@ -179,6 +225,7 @@ def fit_distributed(
                      "displacement": np.asarray(drive_input, dtype=np.float64).reshape(n, -1)}
     per_trial.update(
         y=y, direction=None if direction is None else _per_trial(direction, n),
+        groups=None if groups is None else np.asarray(groups),
         u0=None if u0 is None else np.asarray(u0, dtype=np.float64).reshape(n, -1))
     shared = {"t": np.asarray(t, dtype=np.float64), "drive": drive, "fit_kwargs": fit_kwargs}
     parts = map_chunks(_fit_chunk, per_trial, shared, scheduler=scheduler, n_chunks=n_chunks)

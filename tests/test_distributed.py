@@ -42,8 +42,9 @@ def test_distributed_fit_equals_local_fit(client, trials):
     assert remote.n_trials == ts.n_trials
     assert remote.model == local.model
     np.testing.assert_array_equal(remote.status, local.status)
-    # A trial's fit does not depend on the chunk it lands in: same numbers, bit for bit.
-    np.testing.assert_array_equal(np.stack(remote.u), np.stack(local.u))
+    # A trial's fit does not depend on the chunk it lands in: the same numbers up to
+    # rounding (the pooled LM's batch shape changes XLA's vectorisation: ~1e-16 seen).
+    np.testing.assert_allclose(np.stack(remote.u), np.stack(local.u), rtol=1e-12, atol=1e-12)
     assert remote.wall_s > 0
 
 

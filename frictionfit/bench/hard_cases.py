@@ -1,6 +1,7 @@
 """Numerical stability: run the hard-case gallery through the fit and judge every trial.
 
-A trial's outcome is one of
+Each trial is judged twice, on the least-squares fit and on its Laplace
+posterior (:func:`frictionfit.uncertainty.sample_posterior`). An outcome is one of
 
 - ``correct``: converged, and every checked parameter within the case's tolerance;
 - ``flagged``: an explicit answer that the data cannot give the number: a status
@@ -24,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.distributed import take_trials
 from frictionfit.errors import Status
 from frictionfit.fit import FitResult, fit_trials
 from frictionfit.models import get_model
@@ -37,7 +39,13 @@ CHUNK = 16
 
 @dataclass(frozen=True)
 class TrialOutcome:
-    """The verdict on one trial of one hard case."""
+    """The verdict on one trial of one hard case: the fit's outcome and the Laplace posterior's.
+
+    ``passed``: the fit's outcome is acceptable for the case, repeated trials are
+    bit-identical and the Jacobian finite. ``laplace_passed``: the posterior's
+    outcome is acceptable (it counts as right when the truth is within the case's
+    tolerance + POSTERIOR_SDS sd of its median) or the posterior was not run.
+    """
 
     case: str
     trial: int
@@ -45,6 +53,9 @@ class TrialOutcome:
     outcome: str
     passed: bool
     detail: str
+    laplace: str = "not_run"
+    laplace_passed: bool = True
+    laplace_detail: str = ""
 
 
 def _groups(cases: Mapping[str, HardCase]) -> dict[tuple, list[str]]:
@@ -68,44 +79,71 @@ def _fit_group(group: list[HardCase], solver: str, max_steps: int) -> FitResult:
 
 @dataclass(frozen=True)
 class CaseFit:
-    """The rows of one case in a batched fit result (only what judging needs)."""
+    """One case's rows of a batched fit (and of its Laplace posterior, when run).
+
+    ``post_median``/``post_sd`` are per-trial dicts (physical units), ``None`` when
+    the uncertainty was not run; ``post_error`` is the exception text if it raised.
+    """
 
     status: np.ndarray
     values: list[dict]
     stderr: list[dict]
     flags: list[dict]
     u: list[np.ndarray]
+    post_median: list[dict] | None = None
+    post_sd: list[dict] | None = None
+    post_converged: np.ndarray | None = None
+    post_error: str = ""
 
 
-def _split(result: CaseFit, sizes: list[int]) -> list[CaseFit]:
-    """Per-case rows of a batched result, in order."""
-    out, start = [], 0
-    for n in sizes:
-        rows = slice(start, start + n)
-        out.append(CaseFit(np.asarray(result.status)[rows], result.values[rows],
-                           result.stderr[rows], result.flags[rows], list(result.u[rows])))
-        start += n
-    return out
+def _laplace(fit: FitResult, case: HardCase):
+    """Laplace posterior of one case's fit: ``(median, sd, converged)``, or the error text."""
+    try:
+        from frictionfit.uncertainty import sample_posterior
+    except ImportError as exc:
+        return f"uncertainty unavailable: {exc}"
+    try:
+        post = sample_posterior(fit, case.y, case.t, (case.t_out, case.t_back), method="laplace")
+    except Exception as exc:  # noqa: BLE001 - an escaped exception is an outcome
+        return f"{type(exc).__name__}: {exc}"
+    median = [{k: float(q[k][2]) for k in q} for q in post.quantiles]  # QUANTILES: 2 = median
+    return median, post.sd, np.asarray(post.converged)
 
 
-def fit_cases(cases: Mapping[str, HardCase], *, solver: str = "lm",
-              max_steps: int = 200) -> dict[str, CaseFit | Exception]:
-    """Fit every case, batching compatible cases into one call; an exception is kept, not raised.
+def _case_fit(fit: FitResult, case: HardCase, uncertainty: bool) -> CaseFit:
+    post = _laplace(fit, case) if uncertainty else None
+    extra = {"post_error": post} if isinstance(post, str) else {} if post is None else {
+        "post_median": post[0], "post_sd": post[1], "post_converged": post[2]}
+    return CaseFit(np.asarray(fit.status), fit.values, fit.stderr, fit.flags, list(fit.u),
+                   **extra)
 
-    When a batched call raises, its cases are refitted one by one so that the
-    exception is pinned on the case that causes it.
+
+def _run_group(group: list[HardCase], solver: str, max_steps: int,
+               uncertainty: bool) -> list[CaseFit]:
+    fit = _fit_group(group, solver, max_steps)
+    bounds = np.cumsum([0] + [c.n_trials for c in group])
+    return [_case_fit(take_trials(fit, slice(a, b)), case, uncertainty)
+            for case, a, b in zip(group, bounds[:-1], bounds[1:], strict=True)]
+
+
+def fit_cases(cases: Mapping[str, HardCase], *, solver: str = "lm", max_steps: int = 200,
+              uncertainty: bool = True) -> dict[str, CaseFit | Exception]:
+    """Fit every case (and its Laplace posterior), batching compatible cases into one call.
+
+    An exception is kept as the case's result, not raised: when a batched call
+    raises, its cases are refitted one by one so that the exception is pinned on
+    the case that causes it.
     """
     results: dict[str, CaseFit | Exception] = {}
     for names in _groups(cases).values():
         group = [cases[n] for n in names]
         try:
-            parts = _split(_fit_group(group, solver, max_steps), [c.n_trials for c in group])
-            results.update(zip(names, parts, strict=True))
+            results.update(zip(names, _run_group(group, solver, max_steps, uncertainty),
+                               strict=True))
         except Exception:  # noqa: BLE001 - localise the failure below, case by case
             for name, case in zip(names, group, strict=True):
                 try:
-                    results[name] = _split(_fit_group([case], solver, max_steps),
-                                           [case.n_trials])[0]
+                    results[name] = _run_group([case], solver, max_steps, uncertainty)[0]
                 except Exception as exc:  # noqa: BLE001 - an escaped exception is an outcome
                     results[name] = exc
     return results
@@ -138,24 +176,29 @@ def gradients_finite(case: HardCase, result: CaseFit) -> bool:
     return ok
 
 
-def _verdict(case: HardCase, result: CaseFit, i: int) -> tuple[str, str]:
-    status = Status(int(result.status[i]))
-    values, errs, flags = result.values[i], result.stderr[i], result.flags[i]
-    silent = [n for n in values if n not in flags
-              and not (np.isfinite(values[n]) and np.isfinite(errs[n]))]
-    if status is Status.CONVERGED and silent:
+#: A posterior is confidently wrong when the truth lies further than this many sd
+#: (beyond the case's tolerance) from its median.
+POSTERIOR_SDS = 4.0
+
+
+def _compare(case: HardCase, est: dict, spread: dict, flags: dict, trusted: bool, why_not: str,
+             n_spread: float) -> tuple[str, str]:
+    """Outcome of estimates ``est`` +- ``n_spread * spread`` against the case's truth."""
+    silent = [n for n in est if n not in flags
+              and not (np.isfinite(est[n]) and np.isfinite(spread[n]))]
+    if trusted and silent:
         return "silent_nan", f"non-finite without flag: {silent}"
-    if status is not Status.CONVERGED:
-        return "flagged", status.name.lower()
+    if not trusted:
+        return "flagged", why_not
     wrong, flagged = [], []
     for name, (rtol, atol) in case.check.items():
-        est, true = values[name], case.truth[name]
-        if abs(est - true) <= rtol * abs(true) + atol:
+        value, true = est[name], case.truth[name]
+        if abs(value - true) <= rtol * abs(true) + atol + n_spread * spread[name]:
             continue
         if name in flags:
             flagged.append(f"{name} ({flags[name]})")
         else:
-            wrong.append(f"{name}={est:.4g} (truth {true:.4g})")
+            wrong.append(f"{name}={value:.4g} (truth {true:.4g})")
     if wrong:
         return "confident_wrong", "; ".join(wrong)
     if flagged:
@@ -163,11 +206,27 @@ def _verdict(case: HardCase, result: CaseFit, i: int) -> tuple[str, str]:
     return "correct", ""
 
 
+def _fit_verdict(case: HardCase, result: CaseFit, i: int) -> tuple[str, str]:
+    status = Status(int(result.status[i]))
+    return _compare(case, result.values[i], result.stderr[i], result.flags[i],
+                    status is Status.CONVERGED, status.name.lower(), 0.0)
+
+
+def _posterior_verdict(case: HardCase, result: CaseFit, i: int) -> tuple[str, str]:
+    if result.post_error:
+        return "error", result.post_error
+    if result.post_median is None:
+        return "not_run", ""
+    return _compare(case, result.post_median[i], result.post_sd[i], result.flags[i],
+                    bool(result.post_converged[i]), "posterior not converged", POSTERIOR_SDS)
+
+
 def judge(case: HardCase, result: CaseFit | Exception) -> list[TrialOutcome]:
     """One :class:`TrialOutcome` per trial of ``case``; case-wide failures fail every trial."""
     if isinstance(result, Exception):
         msg = f"{type(result).__name__}: {result}"
-        return [TrialOutcome(case.name, i, "-", "error", False, msg) for i in range(case.n_trials)]
+        return [TrialOutcome(case.name, i, "-", "error", False, msg, "error", False, "")
+                for i in range(case.n_trials)]
     case_problems = []
     if case.bit_identical and not all(np.array_equal(u, result.u[0]) for u in result.u):
         case_problems.append("identical trials gave different results")
@@ -175,29 +234,33 @@ def judge(case: HardCase, result: CaseFit | Exception) -> list[TrialOutcome]:
         case_problems.append("non-finite Jacobian")
     out = []
     for i in range(case.n_trials):
-        outcome, detail = _verdict(case, result, i)
+        outcome, detail = _fit_verdict(case, result, i)
+        uq, uq_detail = _posterior_verdict(case, result, i)
         passed = outcome in case.accept and not case_problems
         detail = "; ".join([d for d in (detail, *case_problems) if d])
         out.append(TrialOutcome(case.name, i, Status(int(result.status[i])).name.lower(),
-                                outcome, passed, detail))
+                                outcome, passed, detail, uq,
+                                uq in (*case.accept, "not_run"), uq_detail))
     return out
 
 
 def run(*, quick: bool = False, seed: int = 0) -> dict:
-    """The hard-case section of the bench report: the fit's outcome on every case.
+    """The hard-case section of the bench report: fit and Laplace outcomes on every case.
 
     Returns ``{"stage": "hard_cases", "summary": {...}, "cases": [row, ...]}``, one row
-    per trial with case, status, outcome, passed and detail.
+    per trial (the fields of :class:`TrialOutcome`).
     """
     cases = hard_cases(seed=seed)
     results = fit_cases(cases, max_steps=100 if quick else 200)
     rows = [o.__dict__ for name, case in cases.items() for o in judge(case, results[name])]
-    passed = [r["passed"] for r in rows]
-    counts = {k: sum(r["outcome"] == k for r in rows)
-              for k in ("correct", "flagged", "confident_wrong", "silent_nan", "error")}
-    return {"stage": "hard_cases",
-            "summary": {"hard_cases_passed": int(sum(
-                all(r["passed"] for r in rows if r["case"] == n) for n in cases)),
-                "hard_cases_total": len(cases), "hard_case_trials_passed_rate":
-                float(np.mean(passed)), **{f"hard_case_{k}": v for k, v in counts.items()}},
-            "cases": rows}
+    kinds = ("correct", "flagged", "confident_wrong", "silent_nan", "error")
+    summary = {
+        "hard_cases_total": len(cases),
+        "hard_cases_fit_passed": sum(all(r["passed"] for r in rows if r["case"] == n)
+                                     for n in cases),
+        "hard_cases_laplace_passed": sum(all(r["laplace_passed"] for r in rows if r["case"] == n)
+                                         for n in cases),
+        **{f"hard_case_fit_{k}": sum(r["outcome"] == k for r in rows) for k in kinds},
+        **{f"hard_case_laplace_{k}": sum(r["laplace"] == k for r in rows) for k in kinds},
+    }
+    return {"stage": "hard_cases", "summary": summary, "cases": rows}

@@ -157,9 +157,10 @@ def to_markdown(bench: Mapping) -> str:
                   f"{d['dask_speedup_2_workers']:.3g}x.", ""]
     if "hard_cases" in bench:
         lines += ["## Hard cases", ""]
-        lines += _table(["case", "trial", "status", "outcome", "passed", "detail"],
-                        [[r["case"], r["trial"], r["status"], r["outcome"],
-                          "yes" if r["passed"] else "**NO**", r["detail"]]
+        lines += _table(["case", "trial", "fit status", "fit", "Laplace", "passed", "detail"],
+                        [[r["case"], r["trial"], r["status"], r["outcome"], r["laplace"],
+                          "yes" if r["passed"] and r["laplace_passed"] else "**NO**",
+                          "; ".join(d for d in (r["detail"], r["laplace_detail"]) if d)]
                          for r in bench["hard_cases"]["cases"]])
     return "\n".join(lines)
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from frictionfit.models import PARAMS, get_model
 
-__all__ = ["BASE_TRUTH", "NOISE_SD", "HardCase", "hard_cases", "truth_unconstrained"]
+__all__ = ["BASE_TRUTH", "CASES", "NOISE_SD", "HardCase", "hard_cases", "truth_unconstrained"]
 
 #: Sensor noise of every case, N (absolute: a weak signal is weak against it).
 NOISE_SD = 0.01
@@ -175,7 +175,7 @@ _FRICTION = {"f_kin": (0.05, 0.01), "offset": (0.0, 0.01)}
 _BUILDERS: dict[str, Callable[[int], HardCase]] = {
     "nominal": lambda s: _case(
         "nominal", "control: the base stick-slip contact at 40 dB", "stick_slip", 2, s,
-        {**_FRICTION, "k": (0.15, 0.0)}, accept=("correct",)),
+        {**_FRICTION, "f_static_excess": (0.05, 0.01)}, accept=("correct",)),
     "never_slips": lambda s: _case(
         "never_slips", "k * stroke (1.5 N) stays below the friction limit: friction unseen",
         "stick_slip", 2, s, {"k": (0.05, 0.0), "f_kin": (0.0, 0.0)}, k=1.5, f_kin=3.0),
@@ -223,6 +223,8 @@ _BUILDERS: dict[str, Callable[[int], HardCase]] = {
 }
 _BUILDERS["extreme_start"] = lambda s: _extreme_u0(_case(
     "extreme_start", "", "stick_slip", 2, s, _FRICTION))
+#: The names of the gallery's cases, in order.
+CASES: tuple[str, ...] = tuple(_BUILDERS)
 
 
 def hard_cases(names: list[str] | None = None, seed: int = 0) -> dict[str, HardCase]:
