@@ -35,7 +35,7 @@ __all__ = [
     "write_recording",
 ]
 
-KNOWN_UNITS = frozenset({"N", "mN", "kN", "counts", "mm", "m", "kPa", "Pa", "V", "1", ""})
+KNOWN_UNITS = frozenset({"N", "mN", "kN", "N m", "counts", "mm", "m", "kPa", "Pa", "V", "1", ""})
 REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
 #: Relative deviation of the median sample interval from 1/sample_rate_hz that is flagged.
 RATE_TOLERANCE = 0.02
