@@ -10,15 +10,16 @@ be built from geometry; the contact model is fitted to the first principal
 component (PC1) of the centred taxels, i.e. the load change all taxels share
 (sign: loadings sum positive), divided by its own 5-95 % range (unitless, "r").
 
-**Contact model over the start window.** The drive is the known travel: a
+**Contact model over the whole slide.** The drive is the known travel: a
 quarter-sine velocity ramp of duration ``ramp_s`` (covering ``2 |v| ramp_s / pi``
-mm) then constant ``|v|``. Over the ramp and as long again of steady sliding, the
-``relaxation`` member of the family (play operator with slip weakening plus a
-Maxwell branch) is fitted with ``drive="given"``: loading stiffness ``k``
-(r/mm), static/kinetic ratio ``1 + f_static_excess / f_kin``, slip-weakening
-length (mm) and relaxation time ``tau`` (s), each with its standard error. In the
-steady part the model's force is a plateau: what texture adds there is the
-stick-slip, described by cycle statistics below.
+mm) then constant ``|v|``. The observable, block-averaged to ``N_FIT`` points (the
+model describes the load-up, the breakaway and the slow relaxation, not each
+stick-slip cycle), is fitted by the ``relaxation`` member of the family (play
+operator with slip weakening plus a Maxwell branch) with ``drive="given"``:
+loading stiffness ``k`` (r/mm), static/kinetic ratio ``1 + f_static_excess /
+f_kin``, slip-weakening length (mm) and relaxation time ``tau`` (s), with the
+relative standard error of ``k``. Slides of one speed share one batched fit.
+The stick-slip itself is described by cycle statistics of the steady part.
 
 **Steady part (ramps excluded).** Stick-slip period (s and mm of travel) at the
 largest peak of the PC1 spectrum outside the grip-loop line (2.0-2.6 Hz), its
@@ -50,6 +51,8 @@ RAMP_FRACTION = 0.079
 GRIP_LOOP_HZ = (2.0, 2.6)
 BAND_EDGES_HZ = np.geomspace(0.25, 17.5, 9)
 CONTACT_MODEL = "relaxation"
+#: Points of the whole-slide observable the contact model is fitted to.
+N_FIT = 128
 #: Decimals kept of the range-normalised observable fed to the contact-model fit.
 OBSERVABLE_DECIMALS = 9
 _CYCLE_NAMES = ["stick_slip_period [s]", "stick_slip_period [mm]", "stick_slip_amplitude [1]",
@@ -117,60 +120,73 @@ def steady_features(rec: Recording) -> np.ndarray:
     return np.concatenate([cycle, amp, np.ravel(bands)])
 
 
-def _start_windows(recordings: Sequence[Recording]):
-    """Per recording: uniform times, PC1 observable and travel over ramp + as long again."""
+def _fit_windows(recordings: Sequence[Recording]):
+    """Per recording: ``N_FIT`` uniform times over the slide, the PC1 observable, the travel.
+
+    The observable is block-averaged to the coarser grid (a moving mean as wide as
+    one grid step) before it is interpolated, so no stick-slip cycle aliases into it.
+    """
     for rec in recordings:
         speed, ramp_s = _slide_info(rec)
-        fs = rec.sample_rate_hz
-        n = int(round(2.0 * ramp_s * fs))
-        t = np.arange(n) / fs
+        t = np.linspace(0.0, rec.t[-1], N_FIT)
+        width = max(1, int(round(rec.n_samples / N_FIT)))
+        pc = _pc1(_taxels(rec))
+        smooth = np.convolve(np.pad(pc, (width // 2, width - 1 - width // 2), mode="edge"),
+                             np.full(width, 1.0 / width), mode="valid")
         # Rounded far below one count so that offset-shifted taxels (equal up to float
         # rounding after centring) give bitwise-equal inputs, hence identical fits.
-        pc = np.round(_pc1(_taxels(rec)), OBSERVABLE_DECIMALS)
-        yield n, t, np.interp(t, rec.t, pc), slide_drive(t, speed, ramp_s)
+        y = np.round(np.interp(t, rec.t, smooth), OBSERVABLE_DECIMALS)
+        yield round(abs(speed), 6), t, y, slide_drive(t, speed, ramp_s)
 
 
-def _start_guess(y: np.ndarray, x: np.ndarray) -> list[float]:
-    """Unconstrained starting point from the window: rise over travel, peak, plateau."""
-    dev = y - y[:3].mean()
-    sign = 1.0 if dev.max() >= -dev.min() else -1.0
+def _start_guess(y: np.ndarray, x: np.ndarray, duration_s: float) -> tuple[list[float], float]:
+    """Unconstrained starting point and load-up sign (+1/-1) from a slide's observable.
+
+    The sign is that of the mean change over the first quarter of the slide; the
+    static peak is the largest signed change there, the kinetic level the median
+    of the last quarter, the stiffness the peak over the travel reached at it.
+    """
+    dev = y - y[:2].mean()
+    quarter = max(2, dev.size // 4)
+    sign = 1.0 if dev[:quarter].mean() >= 0 else -1.0
     dev = sign * dev
-    i = int(np.argmax(dev))
+    i = int(np.argmax(dev[:quarter]))
     peak = max(float(dev[i]), 1e-3)
-    plateau = float(np.clip(np.median(dev[-max(3, dev.size // 4):]), 0.05 * peak, peak))
-    guess = {"offset": y[:3].mean(), "k": float(np.clip(peak / max(x[i], 1e-2), 1e-3, 1e3)),
+    plateau = float(np.clip(np.median(dev[-quarter:]), 0.05 * peak, peak))
+    guess = {"offset": y[:2].mean(), "k": float(np.clip(peak / max(x[i], 0.5), 1e-3, 1e3)),
              "f_kin": plateau, "f_static_excess": max(peak - plateau, 1e-3),
-             "slip_length": 2.0, "relax_frac": 0.3, "tau": 1.0}
-    return [PARAMS[n].to_unconstrained(guess[n]) for n in ("offset", "k", "f_kin",
-                                                            "f_static_excess", "slip_length",
-                                                            "relax_frac", "tau")]
+             "slip_length": 2.0, "relax_frac": 0.3, "tau": 0.2 * duration_s}
+    names = ("offset", "k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau")
+    return [PARAMS[n].to_unconstrained(guess[n]) for n in names], sign
 
 
 def fit_breakaway(recordings: Sequence[Recording], max_steps: int = 200) -> np.ndarray:
-    """Fit the contact model to each slide's start window; rows of the ``_FIT_NAMES`` features.
+    """Fit the contact model to each whole slide; rows of the ``_FIT_NAMES`` features.
 
-    Recordings are batched by window length (one :func:`~frictionfit.fit.fit_trials`
+    Recordings are batched by speed (one :func:`~frictionfit.fit.fit_trials`
     call per speed). A fit that fails keeps its values and gets ``contact_fit_ok = 0``;
     a non-finite value is replaced by the parameter's default (and flagged the same way).
     """
     from frictionfit.fit import fit_trials
 
-    windows = list(_start_windows(recordings))
+    windows = list(_fit_windows(recordings))
     out = np.empty((len(windows), len(_FIT_NAMES)))
-    for n in sorted({w[0] for w in windows}):
-        idx = [i for i, w in enumerate(windows) if w[0] == n]
+    for speed in sorted({w[0] for w in windows}):
+        idx = [i for i, w in enumerate(windows) if w[0] == speed]
         t = windows[idx[0]][1]
         y = np.vstack([windows[i][2] for i in idx])
         x = np.vstack([windows[i][3] for i in idx])
-        u0 = np.asarray([_start_guess(yi, xi) for yi, xi in zip(y, x, strict=True)])
-        res = fit_trials(y, t, x, model=CONTACT_MODEL, drive="given", u0=u0, max_steps=max_steps)
+        guesses = [_start_guess(yi, xi, t[-1]) for yi, xi in zip(y, x, strict=True)]
+        u0 = np.asarray([g[0] for g in guesses])
+        sign = np.asarray([g[1] for g in guesses])
+        res = fit_trials(y, t, x, model=CONTACT_MODEL, drive="given", u0=u0, direction=sign,
+                         max_steps=max_steps)
         for row, i in enumerate(idx):
             v, se = res.values[row], res.stderr[row]
             log_k_se = se["k"] / v["k"] if np.isfinite(se["k"]) and v["k"] > 0 else 10.0
             vals = [v["k"], 1.0 + v["f_static_excess"] / v["f_kin"], v["slip_length"], v["tau"],
-                    v["relax_frac"], min(log_k_se, 10.0), float(np.sign(np.median(y[row]
-                                                                                  - y[row][0]))),
-                    res.r2[row], float(res.status[row] == Status.CONVERGED)]
+                    v["relax_frac"], min(log_k_se, 10.0), sign[row], res.r2[row],
+                    float(res.status[row] == Status.CONVERGED)]
             vals = np.asarray(vals, dtype=np.float64)
             if not np.all(np.isfinite(vals)):
                 vals = np.where(np.isfinite(vals), vals, 1.0)
