@@ -33,9 +33,11 @@ from frictionfit.errors import RecordingError
 from frictionfit.recording import Channel, Recording
 
 __all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
-           "segment"]
+           "segment", "suspect_samples"]
 
 _GRID_S = 0.25e-3  # resolution of the change-point grids, s
+#: Exact repeats of a whole row (every channel) this long are a stuck data link.
+STUCK_MIN = 15
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,9 @@ class Motion:
     """One rubbing motion: uniform-grid samples (NaN where missing) and its command times (s).
 
     ``t0`` is the recording time (s) of the motion's first sample, so a phase boundary
-    ``b`` (s from motion start) is at ``t0 + b`` in the recording.
+    ``b`` (s from motion start) is at ``t0 + b`` in the recording. ``movements`` are the
+    out and back :class:`Movement`; ``problems`` name what was masked (missing samples,
+    spikes, stuck values) or guessed (boundaries the force did not show).
     """
 
     recording: str
@@ -83,6 +87,7 @@ class Motion:
     metadata: dict
     t0: float = 0.0
     movements: tuple[Movement, ...] = field(default=())
+    problems: tuple[str, ...] = ()
 
 
 def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
@@ -109,26 +114,67 @@ def regrid(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return rec.t[0] + np.arange(n) / rec.sample_rate_hz, grid
 
 
-def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One signal from all channels (first principal component, N) and its validity mask.
+def suspect_samples(grid: np.ndarray, *, stuck_min: int = STUCK_MIN
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Transmission faults the file format cannot show: spikes and stuck values.
 
-    Spikes (samples far from a 7-sample running median) and non-finite samples are
-    masked, then bridged linearly so the filters and the component see no holes.
+    Parameters
+    ----------
+    grid : ndarray (n_samples, n_channels)
+        Uniform-grid samples (NaN where missing).
+    stuck_min : int
+        Rows repeated exactly (every channel) at least this many times are stuck.
+
+    Returns
+    -------
+    spike : ndarray of bool (n_samples, n_channels)
+        Samples further from a 7-sample running median than ``12 sd``, 50 mN and 4 times
+        the local sample-to-sample change.
+    stuck : ndarray of bool (n_samples,)
+        Repeats of a row after its first occurrence, in runs of ``stuck_min`` or more.
     """
     x = np.array(grid, dtype=np.float64)
     ok = np.isfinite(x)
+    idx = np.arange(x.shape[0])
+    spike = np.zeros(x.shape, dtype=bool)
+    for j in range(x.shape[1]):
+        if ok[:, j].sum() < 2:
+            continue
+        for _ in range(3):  # spikes close together hide each other: peel them off
+            good = ok[:, j] & ~spike[:, j]
+            smooth = np.interp(idx, idx[good], x[good, j])  # spikes found so far bridged
+            resid = np.where(ok[:, j], x[:, j], smooth) - median_filter(smooth, 7, mode="nearest")
+            spread = 1.4826 * np.median(np.abs(resid - np.median(resid)))
+            # a sharp static peak is no spike: compare with the local sample-to-sample change
+            slope = median_filter(np.abs(np.diff(smooth, prepend=smooth[0])), 7, mode="nearest")
+            new = ok[:, j] & (np.abs(resid) > np.maximum(max(12 * spread, 0.05), 4 * slope))
+            if not (new & ~spike[:, j]).any():
+                break
+            spike[:, j] |= new
+    same = np.r_[False, np.all(np.diff(x, axis=0) == 0, axis=1)]
+    edges = np.flatnonzero(np.diff(np.r_[0, same.astype(np.int8), 0]))
+    stuck = np.zeros(x.shape[0], dtype=bool)
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if b - a >= stuck_min - 1:
+            stuck[a:b] = True
+    return spike, stuck
+
+
+def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One signal from all channels (first principal component, N) and its validity mask.
+
+    Missing samples, spikes and stuck values are masked, then bridged linearly so the
+    filters and the component see no holes.
+    """
+    spike, stuck = suspect_samples(grid)
+    x = np.array(grid, dtype=np.float64)
+    ok = np.isfinite(x) & ~spike & ~stuck[:, None]
     idx = np.arange(x.shape[0])
     for j in range(x.shape[1]):
         if ok[:, j].sum() < 2:
             x[:, j], ok[:, j] = 0.0, False
             continue
         x[:, j] = np.interp(idx, idx[ok[:, j]], x[ok[:, j], j])
-        resid = x[:, j] - median_filter(x[:, j], 7, mode="nearest")
-        spread = 1.4826 * np.median(np.abs(resid - np.median(resid)))
-        spike = np.abs(resid) > max(12 * spread, 0.05)
-        if spike.any():
-            ok[spike, j] = False
-            x[:, j] = np.interp(idx, idx[ok[:, j]], x[ok[:, j], j])
     centred = x - np.median(x, axis=0)
     _, _, vt = np.linalg.svd(centred[:: max(1, x.shape[0] // 4000)], full_matrices=False)
     return centred @ vt[0], ok.all(axis=1)
@@ -311,6 +357,7 @@ def segment(
     move_s: float = 0.15,
     use_events: bool = True,
     lag_s: float = 0.025,
+    mask_faults: bool = True,
 ) -> list[Motion]:
     """Split a measurement into motions and each motion into movement and relaxation phases.
 
@@ -332,6 +379,9 @@ def segment(
         sidecar has no events).
     lag_s : float
         Nominal motor latency (s); see :func:`detect_movements`.
+    mask_faults : bool, default True
+        Set spikes and stuck values (see :func:`suspect_samples`) to NaN, so fits
+        treat them as missing; ``Motion.problems`` says what was masked either way.
 
     Returns
     -------
@@ -354,6 +404,10 @@ def segment(
         raise RecordingError("no 'move p2' events and no movements found in the force: "
                              "cannot segment", path=rec.name)
     t, grid = regrid(rec)
+    missing = ~np.isfinite(grid)
+    spike, stuck = suspect_samples(grid)
+    if mask_faults:
+        grid[spike | stuck[:, None]] = np.nan
     if filter_n:
         grid = moving_average(grid, filter_n)
     rate = rec.sample_rate_hz
@@ -377,9 +431,16 @@ def segment(
             Phase("move_back", ret.start - t0, ret.stop - t0),
             Phase("relax_back", ret.stop - t0, n / rate),
         )
+        rows = slice(start, start + n)
+        found = {"missing sample(s)": int(missing[rows].any(axis=1).sum()),
+                 "spike(s) masked": int(spike[rows].sum()),
+                 "stuck sample(s) masked": int(stuck[rows].sum()),
+                 "boundary(ies) not seen in the force, nominal times used":
+                     sum(not mv.detected for mv in (out, ret))}
         motions.append(Motion(
-            rec.name, i, np.arange(n) / rate, grid[start:start + n], rec.channels, rate,
+            rec.name, i, np.arange(n) / rate, grid[rows], rec.channels, rate,
             out.command - t0, ret.command - t0, phases, {**rec.metadata, "motion": i},
             t0=t0, movements=(out, ret),
+            problems=tuple(f"{count} {what}" for what, count in found.items() if count),
         ))
     return motions

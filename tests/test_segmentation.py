@@ -114,3 +114,22 @@ def test_a_fault_over_a_boundary_does_not_sink_the_measurement(simulated):
     assert [m.index for m in motions] == [1, 2, 3, 4]
     errors = _errors_ms(rec, motions)
     assert all(np.abs(e).max() < 5.0 for i, e in errors.items() if i != 1)
+
+
+def test_spikes_and_stuck_values_are_masked_and_reported(simulated):
+    rec = simulated[3]
+    samples = rec.samples.copy()
+    samples[2500, 1] += 25.0  # a spike on thumb_y in motion 1
+    samples[4300:4400] = samples[4299]  # the link repeats one row for 100 ms in motion 2
+    broken = replace(rec, samples=samples)
+    motions = {m.index: m for m in segment(broken)}
+    one, two = motions[1], motions[2]
+    assert "1 spike(s) masked" in one.problems
+    # motion k starts at 2k s (50 ms before its out command): sample 2500 is row 500 of motion 1
+    assert np.isnan(one.samples[500, 1]) and np.isfinite(one.samples[500, 0])
+    assert "100 stuck sample(s) masked" in two.problems  # row 4299 itself is genuine
+    assert np.isnan(two.samples[300:400]).all() and np.isfinite(two.samples[299]).all()
+    kept = {m.index: m for m in segment(broken, mask_faults=False)}
+    assert kept[1].samples[500, 1] == samples[2500, 1] and kept[1].problems == one.problems
+    faulty = {f["motion"] for f in rec.truth["faults"]}  # here NaN bursts and spikes
+    assert all(bool(m.problems) == (m.index in faulty) for m in segment(rec))
