@@ -56,7 +56,8 @@ def _solve(model, free, starts, data, opts):
     u_all = u_all.copy()
     u_all[:, cols] = u_free
     resid, jtj = _at_optimum(model, free, u_all, data_all, opts["chunk_size"])
-    cost = np.where(nonfinite, np.inf, np.nan_to_num(np.sum(resid**2, axis=1), nan=np.inf))
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is NONFINITE, not a crash
+        cost = np.where(nonfinite, np.inf, np.nan_to_num(np.sum(resid**2, axis=1), nan=np.inf))
     best = np.argmin(cost.reshape(n_starts, n), axis=0) * n + np.arange(n)
     return (u_all[best], converged[best], nonfinite[best], steps.reshape(n_starts, n).sum(0),
             resid[best], jtj[best])
@@ -235,9 +236,11 @@ def fit_trials(
         fits[member.name] = fit
     bic = pd.DataFrame({n: fits[n]["bic"] for n in names})
     chosen = choose(bic)
-    total_ss = np.array([np.sum((yi[m] - yi[m].mean()) ** 2) if m.any() else np.nan
-                         for yi, m in zip(y, mask, strict=True)])
     rows = [fits[name] for name in chosen]
+    with np.errstate(over="ignore", invalid="ignore"):
+        total_ss = np.array([np.sum((yi[m] - yi[m].mean()) ** 2) if m.any() else np.nan
+                             for yi, m in zip(y, mask, strict=True)])
+        r2 = 1.0 - np.array([r["chi2"][i] for i, r in enumerate(rows)]) / total_ss
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
             for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
     return FitResult(
@@ -245,7 +248,7 @@ def fit_trials(
         stderr=[r["stderr"][i] for i, r in enumerate(rows)],
         flags=[r["flags"][i] for i, r in enumerate(rows)], status=pick["status"],
         chi2=pick["chi2"], redchi=pick["redchi"], aic=pick["aic"], bic=pick["bic"],
-        r2=1.0 - pick["chi2"] / total_ss, cond=pick["cond"], n_steps=pick["steps"],
+        r2=r2, cond=pick["cond"], n_steps=pick["steps"],
         u=[r["u"][i] for i, r in enumerate(rows)],
         bic_table=bic if model == "auto" else None, wall_s=time.perf_counter() - start,
         solver=solver, n_starts=opts["n_starts"], direction=direction,

@@ -149,7 +149,8 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
     u_out = u0.copy()
     code_out = np.full(n, MAX_STEPS, np.int64)
     steps_out = np.zeros(n, np.int64)
-    sizes = sorted({max(pool_size // d, 1) for d in (1, 4, 16)}, reverse=True)
+    sizes = sorted({pool_size} | {pool_size // d for d in (4, 16) if pool_size // d >= 4},
+                   reverse=True)
     seg = _segment_fn(normal, cfg)
     b = sizes[0]
     pool = _empty_pool(b, p, dtype)

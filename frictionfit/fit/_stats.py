@@ -84,6 +84,11 @@ def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=
     parameters ``free`` (indices; all by default); ``fixed_names`` the parameters
     held fixed by the user (the other non-free ones are tied).
     """
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # overflow -> NONFINITE
+        return _statistics(model, u, resid, jtj, mask, free, fixed_names)
+
+
+def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):
     free = tuple(range(model.n_params)) if free is None else tuple(free)
     n = mask.sum(axis=1).astype(np.float64)
     p = len(free)

@@ -1,0 +1,247 @@
+"""Benchmark of per-trial fitting: frictionfit's batched LM against the peers a user would pick.
+
+Peers, measured in the same run, interleaved (:func:`frictionfit.bench._timing.alternate`),
+on the same model, data and starting points (the data-driven guess, unconstrained
+coordinates):
+
+* ``scipy-numpy``: ``scipy.optimize.least_squares(method="lm")`` on a plain NumPy
+  implementation of the model (:func:`numpy_predict`, a per-sample Python loop;
+  finite-difference Jacobian), trial by trial;
+* ``scipy-jax``: the same scipy solver driven by the jitted JAX residual and
+  forward-mode Jacobian, trial by trial.
+
+Errors are median relative errors of the true model's parameters
+(``|est - true| / max(|true|, 0.05)``) over the parameters the trials identify
+(:data:`IDENTIFIABLE`); ``median_rel_error_all`` includes the stiffness, movement
+duration and slip-weakening length, which trade off (see :mod:`frictionfit.fit._stats`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frictionfit.bench._timing import alternate, machine_info, timed
+from frictionfit.errors import Status
+from frictionfit.fit import fit_trials, initial_guess
+from frictionfit.models import FAMILY, ContactModel, get_model
+from frictionfit.simulation.trials import TrialSet, simulate_trials
+
+__all__ = ["IDENTIFIABLE", "numpy_predict", "run"]
+
+#: Parameters a 2-s, 20 dB trial identifies (the others trade off with each other).
+IDENTIFIABLE = ("offset", "f_kin", "f_static_excess", "relax_frac", "tau", "delay",
+                "relax_frac2", "tau2", "damping")
+DEFAULT_MODEL = "relaxation"
+
+
+def numpy_predict(model: ContactModel, u: np.ndarray, t: np.ndarray, t_out: float,
+                  t_back: float, direction: float) -> np.ndarray:
+    """Plain NumPy twin of ``model.predict`` (``drive="events"``): force (N) at times ``t`` (s)."""
+    v = {p.name: p.to_physical(np.float64(u[i])) for i, p in enumerate(model.params)}
+    get = v.get
+
+    def shape(s):
+        return 0.5 - 0.5 * np.cos(np.pi * np.clip(s, 0.0, 1.0))
+
+    x = model.stroke_mm * (shape((t - t_out - v["delay"]) / v["ramp"])
+                           - shape((t - t_back - v["delay"]) / v["ramp"]))
+    dt = t[1] - t[0]
+    branches = []
+    if get("relax_frac") is not None:
+        branches.append([v["relax_frac"], v["tau"]])
+        if get("relax_frac2") is not None:
+            branches.append([v["relax_frac2"] * (1.0 - v["relax_frac"]), v["tau2"]])
+    coef = []
+    for frac, tau in branches:
+        h = dt / tau
+        g = 1.0 - 0.5 * h if h < 1e-8 else -np.expm1(-h) / max(h, 1e-300)
+        coef.append((frac, np.exp(-h), g))
+    k, f_kin, excess = v["k"], v["f_kin"], get("f_static_excess")
+    damping = get("damping")
+    z = s = 0.0
+    ws = [0.0] * len(coef)
+    x_old, direction_of_motion = x[0], 1.0
+    force = np.empty_like(x)
+    for n, x_new in enumerate(x):
+        dx = x_new - x_old
+        new_dir = np.sign(dx) if dx != 0.0 else direction_of_motion
+        limit = f_kin
+        if excess is not None:
+            if dx != 0.0 and new_dir != direction_of_motion:
+                s = 0.0
+            limit = f_kin + excess * np.exp(-s * (1.0 / v["slip_length"]))
+        z_max = limit * (1.0 / k)
+        z_trial = z + dx
+        z_new = min(max(z_trial, -z_max), z_max)
+        if excess is not None:
+            s = s + abs(z_trial - z_new)
+        ws = [z_new + a * (w - z) - (z_new - z) * g for w, (_, a, g) in zip(ws, coef, strict=True)]
+        f = k * (z_new - sum(frac * w for w, (frac, _, _) in zip(ws, coef, strict=True)))
+        if damping is not None:
+            f = f + damping * (z_new - z) / dt
+        force[n] = f
+        z, x_old, direction_of_motion = z_new, x_new, new_dir
+    return v["offset"] + direction * force
+
+
+def _rel_errors(model: ContactModel, u: np.ndarray, ts: TrialSet) -> dict[str, np.ndarray]:
+    """Per parameter, the relative error of each trial's estimate against the truth."""
+    out = {}
+    for j, p in enumerate(model.params):
+        est = p.to_physical(np.asarray(u[:, j], dtype=np.float64))
+        true = ts.truth[p.name]
+        out[p.name] = np.abs(est - true) / np.maximum(np.abs(true), 0.05)
+    return out
+
+
+def _median_error(errors: dict[str, np.ndarray], ok: np.ndarray, names) -> float:
+    """Median over trials ``ok`` and the parameters ``names`` of the relative errors."""
+    vals = [errors[n][ok] for n in names if n in errors]
+    flat = np.concatenate(vals) if vals else np.array([])
+    flat = flat[np.isfinite(flat)]
+    return float(np.median(flat)) if flat.size else float("nan")
+
+
+def _scipy_fits(model, ts, u0, residual, jac):
+    """``scipy.optimize.least_squares(method="lm")`` trial by trial; (u, success)."""
+    from scipy.optimize import least_squares
+
+    u = np.empty_like(u0)
+    ok = np.zeros(len(u0), dtype=bool)
+    for i in range(len(u0)):
+        kw = {} if jac is None else {"jac": lambda x, i=i: jac(x, i)}
+        sol = least_squares(lambda x, i=i: residual(x, i), u0[i], method="lm", **kw)
+        u[i], ok[i] = sol.x, sol.success
+    return u, ok
+
+
+def _peers(model: ContactModel, ts: TrialSet, u0: np.ndarray):
+    """The two scipy peers as zero-argument callables returning ``(u, success)``."""
+    import jax
+    import jax.numpy as jnp
+
+    t = ts.t
+    tj = jnp.asarray(t)
+
+    def np_resid(x, i):
+        return numpy_predict(model, x, t, ts.t_out, ts.t_back, ts.direction[i]) - ts.y[i]
+
+    def jax_resid(x, y, d):
+        return model.predict(x, tj, (ts.t_out, ts.t_back), d) - y
+
+    jres = jax.jit(jax_resid)
+    jjac = jax.jit(jax.jacfwd(jax_resid))
+
+    def j_resid(x, i):
+        return np.asarray(jres(x, ts.y[i], ts.direction[i]))
+
+    def j_jac(x, i):
+        return np.asarray(jjac(x, ts.y[i], ts.direction[i]))
+
+    return (lambda: _scipy_fits(model, ts, u0, np_resid, None),
+            lambda: _scipy_fits(model, ts, u0, j_resid, j_jac))
+
+
+def _ours(ts: TrialSet, model: str, **kw):
+    def call():
+        res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model=model,
+                         direction=ts.direction, **kw)
+        return np.stack(res.u), res.status == Status.CONVERGED
+
+    return call
+
+
+def _point(config, seconds, n, model, u_ok, ts) -> dict:
+    u, ok = u_ok
+    errors = _rel_errors(model, u, ts)
+    return {"config": config, "seconds_per_trial": seconds / n,
+            "error": _median_error(errors, ok, IDENTIFIABLE),
+            "error_name": "median rel. param error", "success_rate": float(np.mean(ok))}
+
+
+def run(*, quick: bool = False, seed: int = 0) -> dict:
+    """Measure fitting throughput and accuracy against the scipy peers (see module doc).
+
+    The full run fits 256 trials of the default model (``relaxation``: 2-s
+    single-channel trials at 1 kHz, 20 dB) with pools of 128, and 8 trials with each
+    peer (the NumPy peer takes seconds per trial); then a grid of configurations.
+    ``quick=True`` (a smoke test, for tests) fits 4 ``elastic_plastic`` trials and 1
+    per peer, without the grid. Timings are medians of interleaved repetitions;
+    ``compile_s`` is the first call of ours minus a steady one.
+    """
+    name, n, n_peer, pool, reps = (("elastic_plastic", 4, 1, 4, 1) if quick
+                                   else (DEFAULT_MODEL, 256, 8, 128, 2))
+    ts = simulate_trials(name, n, seed=seed)
+    model = get_model(name)
+    times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
+    u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
+    peer_ts = TrialSet(name, ts.t, ts.y[:n_peer], ts.t_out, ts.t_back, ts.direction[:n_peer],
+                       {k: v[:n_peer] for k, v in ts.truth.items()}, ts.noise_sd[:n_peer])
+    numpy_peer, jax_peer = _peers(model, peer_ts, u0[:n_peer])
+    calls = {"ours": _ours(ts, name, chunk_size=pool, u0=u0),
+             "ours-peer-set": _ours(peer_ts, name, chunk_size=pool, u0=u0[:n_peer]),
+             "scipy-numpy": numpy_peer, "scipy-jax": jax_peer}
+    first_s, _ = timed(calls["ours"])
+    timed(calls["ours-peer-set"])
+    timed(jax_peer)  # jit compile of the peer's residual and Jacobian
+    runs = alternate(calls, repeats=reps, warmup=False)
+    sizes = {k: n if k == "ours" else n_peer for k in runs}
+    sets = {k: ts if k == "ours" else peer_ts for k in runs}
+    per_trial = {k: runs[k]["median_s"] / sizes[k] for k in runs}
+    errs = {k: _rel_errors(model, runs[k]["result"][0], sets[k]) for k in runs}
+    oks = {k: runs[k]["result"][1] for k in runs}
+    points = [_point(f"{k} {name} float64", runs[k]["median_s"], sizes[k], model,
+                     runs[k]["result"], sets[k]) for k in runs]
+    if not quick:
+        points += _configs(seed, pool)
+    summary = {
+        "model": name, "n_trials": n, "n_trials_peers": n_peer,
+        "trials_per_s": 1.0 / per_trial["ours"],
+        "speedup_vs_scipy_numpy": per_trial["scipy-numpy"] / per_trial["ours"],
+        "speedup_vs_scipy_jax": per_trial["scipy-jax"] / per_trial["ours"],
+        "median_rel_error": _median_error(errs["ours"], oks["ours"], IDENTIFIABLE),
+        "median_rel_error_all": _median_error(errs["ours"], oks["ours"], model.param_names),
+        "median_rel_error_by_param": {
+            k: _median_error(errs["ours"], oks["ours"], [k]) for k in model.param_names},
+        "median_rel_error_peer_set": _median_error(
+            errs["ours-peer-set"], oks["ours-peer-set"], IDENTIFIABLE),
+        "scipy_median_rel_error": _median_error(
+            errs["scipy-numpy"], oks["scipy-numpy"], IDENTIFIABLE),
+        "scipy_jax_median_rel_error": _median_error(
+            errs["scipy-jax"], oks["scipy-jax"], IDENTIFIABLE),
+        "success_rate": float(np.mean(oks["ours"])),
+        "success_rate_peer_set": float(np.mean(oks["ours-peer-set"])),
+        "scipy_success_rate": float(np.mean(oks["scipy-numpy"])),
+        "scipy_jax_success_rate": float(np.mean(oks["scipy-jax"])),
+        "compile_s": float(max(first_s - runs["ours"]["median_s"], 0.0)),
+        "load_average": _load(),
+    }
+    return {"stage": "fit", "summary": summary, "points": points, "machine": machine_info()}
+
+
+def _configs(seed: int, pool: int) -> list[dict]:
+    """Speed/error points over family members, solvers, tolerances and pool sizes."""
+    n = 64
+    grid = [(m.name, "lm", 1e-6, pool) for m in FAMILY]
+    grid += [(DEFAULT_MODEL, "lm", 1e-4, pool), (DEFAULT_MODEL, "lm", 1e-8, pool),
+             (DEFAULT_MODEL, "lm", 1e-6, pool // 4),
+             (DEFAULT_MODEL, "optx-lm", 1e-6, 32), (DEFAULT_MODEL, "dogleg", 1e-6, 32)]
+    points = []
+    for name, solver, ftol, chunk in grid:
+        ts = simulate_trials(name, n, seed=seed + 1)
+        call = _ours(ts, name, solver=solver, ftol=ftol, chunk_size=min(chunk, n))
+        timed(call)  # compile
+        seconds, (u, ok) = timed(call)
+        points.append(_point(f"{solver} {name} ftol={ftol:g} chunk={min(chunk, n)} float64",
+                             seconds, n, get_model(name), (u, ok), ts))
+    return points
+
+
+def _load() -> float | None:
+    """The 1-minute load average (timings on a shared machine are noisy), where known."""
+    import os
+
+    try:
+        return float(os.getloadavg()[0])
+    except OSError:
+        return None
