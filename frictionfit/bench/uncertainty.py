@@ -52,6 +52,13 @@ def _interval_error(post, ref) -> float:
     return float(np.nanmean(errs))
 
 
+def _max_tau_median(post) -> float | None:
+    """Median over emcee trials of the largest tau (steps); None without emcee trials."""
+    taus = [max(t.values()) for m, t in zip(post.method, post.tau, strict=True) if m == "emcee"]
+    taus = [x for x in taus if np.isfinite(x)]
+    return float(np.median(taus)) if taus else None
+
+
 def coverage(post, truth: dict[str, np.ndarray], only_converged: bool = True) -> dict:
     """Fractions of trial-parameters inside the 68 % and 95 % intervals (overall, per param)."""
     q = list(QUANTILES)
@@ -73,7 +80,8 @@ def coverage(post, truth: dict[str, np.ndarray], only_converged: bool = True) ->
 
 
 def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
-        n_calibration: int | None = None) -> dict:
+        n_calibration: int | None = None, n_calibration_emcee: int | None = None,
+        n_reference: int | None = None) -> dict:
     """Run the uncertainty benchmark; ``quick=True`` is a small smoke run for tests.
 
     Parameters
@@ -87,6 +95,10 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
         (quick) by default.
     n_calibration : int, optional
         Calibration trials; 200 (full) or 4 (quick) by default.
+    n_calibration_emcee : int, optional
+        How many of those trials also get emcee (default: all of them).
+    n_reference : int, optional
+        Trials of the speed/error table; 8 (full) or 2 (quick) by default.
 
     Returns
     -------
@@ -96,7 +108,7 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
     model = model or ("elastic_plastic" if quick else "relaxation")
     n_cal = n_calibration or (4 if quick else 200)
     p = get_model(model).n_params
-    n_ref = 2 if quick else 8
+    n_ref = n_reference or (2 if quick else 8)
     ref_steps = 600 if quick else 6000
     budgets = [(2 * p + 2, 150), (2 * p + 2, 400)] if quick else [
         (2 * p + 2, 500), (2 * p + 2, 1500), (2 * p + 2, 3000), (4 * p, 3000)]
@@ -116,20 +128,23 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
             "error": _interval_error(post, ref),
             "error_name": "mean |quantile - reference| / reference sd (2.5/16/84/97.5 %)",
             "converged_rate": float(np.mean(post.converged)),
-            "max_tau_median": float(np.nanmedian([max(t.values()) for t in post.tau])),
+            "max_tau_median": _max_tau_median(post),
         })
     points.append({"config": "reference", "seconds_per_trial": float("nan"), "error": 0.0,
                    "error_name": "reference itself",
                    "converged_rate": float(np.mean(ref.converged)),
-                   "max_tau_median": float(np.nanmedian([max(t.values()) for t in ref.tau]))})
+                   "max_tau_median": _max_tau_median(ref)})
     cal_ts, cal_fit = _fitted(model, n_cal, seed + 1000)
     lap_s, lap = timed(lambda: _posterior(cal_ts, cal_fit, "laplace", seed))
-    mc_s, mc = timed(lambda: _posterior(cal_ts, cal_fit, "emcee", seed))
-    cov_lap, cov_mc = coverage(lap, cal_ts.truth), coverage(mc, cal_ts.truth)
+    n_mc = min(n_calibration_emcee or n_cal, n_cal)
+    sub_ts, sub_fit = (cal_ts, cal_fit) if n_mc == n_cal else _fitted(model, n_mc, seed + 1000)
+    mc_s, mc = timed(lambda: _posterior(sub_ts, sub_fit, "emcee", seed))
+    cov_lap, cov_mc = coverage(lap, cal_ts.truth), coverage(mc, sub_ts.truth)
     auto = _posterior(cal_ts, cal_fit, "auto", seed) if quick else None
     summary = {
         "model": model, "n_calibration": n_cal, "n_reference": n_ref,
-        "emcee_s_per_trial": mc_s / n_cal, "laplace_s_per_trial": lap_s / n_cal,
+        "n_calibration_emcee": n_mc, "emcee_s_per_trial": mc_s / n_mc,
+        "laplace_s_per_trial": lap_s / n_cal,
         "coverage68_emcee": cov_mc["coverage68"], "coverage95_emcee": cov_mc["coverage95"],
         "coverage68_laplace": cov_lap["coverage68"],
         "coverage95_laplace": cov_lap["coverage95"],
@@ -138,7 +153,7 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
                                                           "coverage95_by_param")},
         "laplace_coverage_by_param": {k: cov_lap[k] for k in ("coverage68_by_param",
                                                              "coverage95_by_param")},
-        "emcee_max_tau_median": float(np.nanmedian([max(t.values()) for t in mc.tau])),
+        "emcee_max_tau_median": _max_tau_median(mc),
         "emcee_acceptance_median": float(np.nanmedian(mc.acceptance)),
         "auto_emcee_fraction": None if auto is None else float(
             np.mean([m == "emcee" for m in auto.method])),

@@ -28,7 +28,7 @@ import numpy as np
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.models import get_model
-from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
+from frictionfit.uncertainty._ensemble import ChainResult, SerialHDFBackend, run_lockstep
 from frictionfit.uncertainty._logpost import TrialData, logp_rows, noise_estimate, residuals
 from frictionfit.uncertainty.laplace import laplace, profile_disagreement
 from frictionfit.uncertainty.posterior import (
@@ -245,10 +245,7 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
     covs = np.stack([cov[k] if finite[k] else fallback for k in sel])
     backends = None
     if chains_path is not None:
-        import emcee
-
-        backends = [emcee.backends.HDFBackend(str(chains_path), name=f"trial_{rows[k]}")
-                    for k in sel]
+        backends = [SerialHDFBackend(str(chains_path), name=f"trial_{rows[k]}") for k in sel]
     sub = TrialData(t, y[sel], mask[sel], t_out[sel], t_back[sel], direction[sel], sigma[sel],
                     rho[sel])
     chains = run_lockstep(_evaluator(model, sub), mode[sel], covs, nwalkers=nwalkers,

@@ -16,6 +16,7 @@ load): see :data:`DEFAULT_MOVES` and ``frictionfit/bench/uncertainty.py``.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,7 +25,8 @@ import emcee
 import numpy as np
 from scipy import stats
 
-__all__ = ["ChainResult", "IndependenceMove", "default_moves", "run_lockstep"]
+__all__ = ["ChainResult", "IndependenceMove", "SerialHDFBackend", "default_moves",
+           "run_lockstep"]
 
 
 def IndependenceMove(mean: np.ndarray, cov: np.ndarray, df: float = 5.0) -> emcee.moves.MHMove:
@@ -51,6 +53,22 @@ def default_moves(mean: np.ndarray, cov: np.ndarray) -> list:
     """
     return [(IndependenceMove(mean, cov), 0.6), (emcee.moves.DEMove(), 0.3),
             (emcee.moves.DESnookerMove(), 0.1)]
+
+
+class SerialHDFBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend with every file access serialised, so that the samplers of
+    many trials (threads) can save their chains to groups of one file."""
+
+    _lock = threading.RLock()
+
+    @contextlib.contextmanager
+    def open(self, mode: str = "r"):
+        with self._lock:
+            f = super().open(mode)
+            try:
+                yield f
+            finally:
+                f.close()
 
 
 class _Lockstep:

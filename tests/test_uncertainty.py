@@ -1,0 +1,129 @@
+"""sample_posterior on simulated trials: Laplace vs emcee, flags, tables, arviz, corner, CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from frictionfit.errors import FitError
+from frictionfit.fit import fit_trials
+from frictionfit.models import PARAMS, get_model
+from frictionfit.simulation.trials import simulate_trials
+from frictionfit.uncertainty import posterior_summary, sample_posterior, to_arviz
+from frictionfit.uncertainty.posterior import corner_plot
+
+MODEL = "elastic_plastic"
+#: Slip at half the stroke (f_kin / k = 0.5 mm): k is well identified, the posterior
+#: near-Gaussian. (With a stiff contact k is barely identified: see the benchmark.)
+IDENTIFIED = {"k": 3.0, "f_kin": 1.5}
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """Three simulated trials plus an all-NaN one, fitted from the truth."""
+    ts = simulate_trials(MODEL, 3, seed=3, snr_db=30, params=IDENTIFIED)
+    y = np.vstack([ts.y, np.full(ts.y.shape[1], np.nan)])
+    names = get_model(MODEL).param_names
+    u0 = np.stack([PARAMS[n].to_unconstrained(ts.truth[n]) for n in names], axis=-1)
+    fit = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model=MODEL, u0=np.vstack([u0, u0[:1]]))
+    return ts, y, fit
+
+
+@pytest.fixture(scope="module")
+def both(fitted, tmp_path_factory):
+    ts, y, fit = fitted
+    args = (fit, y, ts.t, (ts.t_out, ts.t_back))
+    chains = tmp_path_factory.mktemp("chains") / "chains.h5"
+    return (sample_posterior(*args, method="laplace"),
+            sample_posterior(*args, method="emcee", seed=2, chains_path=chains), chains)
+
+
+def test_laplace_and_emcee_agree_on_a_near_gaussian_posterior(both):
+    lap, mc, _ = both
+    assert mc.converged[:3].all(), mc.reason
+    for i in range(3):
+        for name, q in lap.quantiles[i].items():
+            sd = mc.sd[i][name]
+            # Twin check: medians within 0.3 posterior sd (MC error ~0.05 sd at ESS > 400),
+            # sds within 30 % (a mild skew in the log-scale parameters is allowed).
+            assert abs(q[2] - mc.quantiles[i][name][2]) < 0.3 * sd, (i, name)
+            assert lap.sd[i][name] == pytest.approx(sd, rel=0.3), (i, name)
+
+
+def test_emcee_chains_meet_the_convergence_rule(both):
+    _, mc, _ = both
+    for i in range(3):
+        chain = mc.chains[i]
+        assert chain.n_steps >= 50 * chain.tau.max()
+        assert 0.1 <= chain.acceptance <= 1.0
+        assert min(mc.ess[i].values()) > 100
+
+
+def test_a_trial_whose_fit_failed_is_skipped_and_named(both):
+    lap, mc, _ = both
+    for post in (lap, mc):
+        assert post.method[3] == "none" and not post.converged[3]
+        assert post.reason[3] == "skipped: fit status insufficient_data"
+        assert np.isnan(post.sd[3]["k"])
+
+
+def test_tables_carry_quantiles_sd_tau_ess_and_flags(both):
+    _, mc, _ = both
+    wide = mc.to_frame()
+    assert {"k_median [N/mm]", "k_p2.5 [N/mm]", "k_p97.5 [N/mm]", "k_sd [N/mm]",
+            "k_tau [steps]", "k_ess", "uq_converged", "uq_acceptance"} <= set(wide.columns)
+    long = posterior_summary(mc)
+    assert len(long) == 4 * get_model(MODEL).n_params
+    row = long[(long.trial == 0) & (long.param == "k")].iloc[0]
+    assert row["p16"] < row["median"] < row["p84"] and row["unit"] == "N/mm"
+
+
+def test_arviz_corner_and_hdf5_chains(both, tmp_path):
+    _, mc, chains = both
+    import h5py
+
+    with h5py.File(chains) as f:
+        assert {"trial_0", "trial_1", "trial_2"} <= set(f)
+    data = to_arviz(mc, 0)
+    assert set(data.posterior.data_vars) == set(get_model(MODEL).param_names)
+    corner_plot(mc, 0, tmp_path / "corner.png")
+    assert (tmp_path / "corner.png").stat().st_size > 10_000
+    with pytest.raises(ValueError, match="trial 3 has no emcee chain"):
+        to_arviz(mc, 3)
+
+
+def test_auto_keeps_laplace_for_well_identified_trials(fitted):
+    ts, y, fit = fitted
+    post = sample_posterior(fit, y, ts.t, (ts.t_out, ts.t_back), method="auto")
+    assert post.method[:3] == ["laplace"] * 3, post.reason
+    assert post.reason[:3] == ["laplace ok"] * 3
+
+
+def test_bad_arguments_are_named(fitted):
+    ts, y, fit = fitted
+    with pytest.raises(FitError, match="unknown uncertainty method 'mcmc'"):
+        sample_posterior(fit, y, ts.t, (ts.t_out, ts.t_back), method="mcmc")
+    with pytest.raises(FitError, match="the fit has 4 trials"):
+        sample_posterior(fit, y[:2], ts.t, (ts.t_out, ts.t_back))
+
+
+def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
+    from typer.testing import CliRunner
+
+    from frictionfit.cli import app
+    from frictionfit.recording import Event, Recording, write_recording
+
+    ts = simulate_trials(MODEL, 1, seed=4, snr_db=30, params=IDENTIFIED)
+    events = [Event(ts.t_out, "move", "p2"), Event(ts.t_back, "move", "p1")]
+    write_recording(Recording.from_arrays(ts.y.T, 1000.0, ["index_x"], events=events),
+                    tmp_path / "m1")
+    out = tmp_path / "fits.csv"
+    runner = CliRunner()
+    result = runner.invoke(app, ["fit", str(tmp_path), "--model", MODEL, "--out", str(out),
+                                 "--uncertainty", "laplace"])
+    assert result.exit_code == 0, result.output
+    frame = pd.read_csv(out)
+    assert {"k_p16 [N/mm]", "k_p84 [N/mm]", "uq_method"} <= set(frame.columns)
+    bad = runner.invoke(app, ["fit", str(tmp_path), "--uncertainty", "mcmc"])
+    assert bad.exit_code == 2 and "choose none, laplace, emcee or auto" in bad.output
