@@ -11,12 +11,23 @@ def fit(
     paths: list[Path] = typer.Argument(..., help="Recordings (<name>.csv) or folders of them."),
     model: str = typer.Option("auto", help="auto, or one of elastic_plastic, stick_slip, "
                               "relaxation, rich."),
-    solver: str = typer.Option("lm", help="lm, dogleg or gauss-newton."),
+    solver: str = typer.Option("lm", help="lm (frictionfit's batched LM, fastest), optx-lm, "
+                               "dogleg or gauss-newton (optimistix)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
     report: bool = typer.Option(False, help="Print the fit report of the first trial."),
     uncertainty: str = typer.Option("none", help="Posterior per trial: none, laplace, emcee "
                                     "or auto (Laplace; emcee where Laplace is doubtful)."),
     chains: Path = typer.Option(None, help="With emcee: save the chains to this HDF5 file."),
+    plot: Path = typer.Option(None, help="Write a PNG of data vs. fit with residuals per "
+                              "trial into this folder."),
+    stroke_mm: float = typer.Option(1.0, help="The rig's finger stroke in mm (stiffness is "
+                                    "per mm of it)."),
+    n_starts: int = typer.Option(1, help="Starting points per trial (seeded multi-start)."),
+    seed: int = typer.Option(0, help="Seed of the multi-start jitter."),
+    fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
+                                  "(repeatable), e.g. --fix tau=0.1."),
+    tie: list[str] = typer.Option([], help="NAME: share a parameter across the channels of "
+                                  "each motion (repeatable)."),
 ) -> None:
     """Fit every non-preparatory motion x channel; one row per trial with status and stderr."""
     import numpy as np
@@ -29,8 +40,13 @@ def fit(
     if uncertainty not in ("none", "laplace", "emcee", "auto"):
         raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
                                  param_hint="--uncertainty")
+    try:
+        fixed = {k: float(v) for k, v in (item.split("=", 1) for item in fix)}
+    except ValueError:
+        raise typer.BadParameter(f"{fix}: write NAME=VALUE, e.g. tau=0.1",
+                                 param_hint="--fix") from None
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    ys, t_outs, t_backs, ids, t = [], [], [], [], None
+    ys, t_outs, t_backs, ids, groups, t = [], [], [], [], [], None
     for f in files:
         try:
             motions = segment(read_recording(f, on_error="flag"))
@@ -48,12 +64,18 @@ def fit(
                 t_outs.append(m.t_out)
                 t_backs.append(m.t_back)
                 ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
+                groups.append(f"{m.recording}/motion{m.index}")
     if not ys:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
     typer.echo(f"fitting {len(ys)} trials ({len(files)} recordings), model={model} ...")
-    result = fit_trials(np.asarray(ys), t, (np.asarray(t_outs), np.asarray(t_backs)),
-                        model=model, solver=solver)
+    try:
+        result = fit_trials(np.asarray(ys), t, (np.asarray(t_outs), np.asarray(t_backs)),
+                            model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts,
+                            seed=seed, fix=fixed, tie=tie, groups=np.asarray(groups))
+    except (FrictionfitError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     frame = result.to_frame(ids)
     if uncertainty != "none":
         from frictionfit.uncertainty import sample_posterior
@@ -65,6 +87,12 @@ def fit(
         frame.to_parquet(out)
     else:
         frame.to_csv(out, index=False)
+    if plot is not None:
+        from frictionfit.fit import plot_fit
+
+        plot.mkdir(parents=True, exist_ok=True)
+        for i, trial_id in enumerate(ids):
+            plot_fit(result, i, t, ys[i], plot / (trial_id.replace("/", "__") + ".png"))
     counts = frame["status"].value_counts().to_dict()
     typer.echo(f"{len(frame)} trials in {result.wall_s:.1f} s; status {counts}; wrote {out}")
     if report:

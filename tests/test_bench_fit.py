@@ -1,0 +1,35 @@
+"""bench fit: the NumPy peer's model is the JAX model; the quick run has the agreed shape."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from frictionfit.bench.fit import numpy_predict, run
+from frictionfit.models import FAMILY, PARAMS
+
+VALUES = dict(offset=-0.2, k=12.0, f_kin=0.7, f_static_excess=0.3, slip_length=0.04,
+              relax_frac=0.35, tau=0.12, relax_frac2=0.2, tau2=1.1, damping=4e-3,
+              delay=0.025, ramp=0.13)
+
+
+@pytest.mark.parametrize("model", FAMILY, ids=lambda m: m.name)
+def test_numpy_twin_equals_jax_model(model):
+    t = np.arange(2000) / 1000.0
+    u = np.array([PARAMS[n].to_unconstrained(VALUES[n]) for n in model.param_names])
+    twin = numpy_predict(model, u, t, 0.05, 1.05, -1.0)
+    ref = np.asarray(model.predict(jnp.asarray(u), jnp.asarray(t), (0.05, 1.05), -1.0))
+    # Same recurrence, same operation order: agreement to rounding (1e-10 N is the bar).
+    np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-10)
+    assert np.ptp(ref) > 0.1  # the trial actually moves (a flat signal would agree trivially)
+
+
+@pytest.mark.slow
+def test_quick_run_reports_every_summary_number():
+    out = run(quick=True, seed=0)
+    assert out["stage"] == "fit"
+    for key in ("trials_per_s", "speedup_vs_scipy_numpy", "speedup_vs_scipy_jax",
+                "median_rel_error", "scipy_median_rel_error", "success_rate", "compile_s"):
+        assert isinstance(out["summary"][key], float) and np.isfinite(out["summary"][key]), key
+    assert {"config", "seconds_per_trial", "error", "error_name", "success_rate"} <= set(
+        out["points"][0])
+    assert out["machine"]["cpu_count"] >= 1

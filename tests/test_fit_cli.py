@@ -1,0 +1,38 @@
+"""``frictionfit fit`` options owned by the fitting work: --plot, --fix, --tie, bad --fix."""
+
+import numpy as np
+import pandas as pd
+from typer.testing import CliRunner
+
+from frictionfit.cli import app
+from frictionfit.recording import Event, Recording, write_recording
+from frictionfit.simulation.trials import simulate_trials
+
+
+def _measurement(tmp_path):
+    ts = simulate_trials("elastic_plastic", 2, seed=4, snr_db=30)
+    samples = np.concatenate([ts.y.T, ts.y.T])  # two 2-s motions, two channels
+    events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
+              for k in range(2) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
+    rec = Recording.from_arrays(samples, 1000.0, ["index_x", "thumb_x"], events=events)
+    write_recording(rec, tmp_path / "m1")
+
+
+def test_fit_plots_fixes_and_ties(tmp_path):
+    _measurement(tmp_path)
+    out, plots = tmp_path / "fits.parquet", tmp_path / "png"
+    result = CliRunner().invoke(app, [
+        "fit", str(tmp_path / "m1.csv"), "--model", "elastic_plastic", "--out", str(out),
+        "--plot", str(plots), "--fix", "delay=0.02", "--tie", "ramp"])
+    assert result.exit_code == 0, result.output
+    frame = pd.read_parquet(out)
+    assert np.allclose(frame["delay [s]"], 0.02) and set(frame["delay_flag"]) == {"fixed"}
+    assert frame["ramp [s]"].nunique() == 1 and set(frame["ramp_flag"]) == {"tied"}
+    assert sorted(p.name for p in plots.iterdir()) == [
+        "m1__motion1__index_x.png", "m1__motion1__thumb_x.png"]
+
+
+def test_bad_fix_is_named(tmp_path):
+    _measurement(tmp_path)
+    result = CliRunner().invoke(app, ["fit", str(tmp_path / "m1.csv"), "--fix", "tau"])
+    assert result.exit_code == 2 and "write NAME=VALUE" in result.output
