@@ -82,3 +82,11 @@ def test_unknown_model_and_drive_are_named():
         get_model("foo")
     with pytest.raises(ValueError, match="drive must be"):
         get_model("stick_slip", drive="wobble")
+
+
+def test_absent_effect_equals_switched_off_effect():
+    # None leaves an effect out of the recurrence; it must equal the effect at zero.
+    x = 1.0 * (0.5 - 0.5 * jnp.cos(jnp.pi * jnp.clip(T / 0.12, 0, 1)))
+    full = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15, 0.0, 1.0, 0.0)
+    lean = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15)
+    np.testing.assert_allclose(lean, full, rtol=0, atol=1e-14)

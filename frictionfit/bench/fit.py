@@ -146,13 +146,14 @@ def _ours(ts: TrialSet, model: str, **kw):
     def call():
         res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model=model,
                          direction=ts.direction, **kw)
-        return np.stack(res.u), res.status == Status.CONVERGED
+        flagged = {n: np.array([n in f for f in res.flags]) for n in res.values[0]}
+        return np.stack(res.u), res.status == Status.CONVERGED, flagged
 
     return call
 
 
 def _point(config, seconds, n, model, u_ok, ts) -> dict:
-    u, ok = u_ok
+    u, ok = u_ok[:2]
     errors = _rel_errors(model, u, ts)
     return {"config": config, "seconds_per_trial": seconds / n,
             "error": _median_error(errors, ok, IDENTIFIABLE),
@@ -209,6 +210,8 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
             errs["scipy-numpy"], oks["scipy-numpy"], IDENTIFIABLE),
         "scipy_jax_median_rel_error": _median_error(
             errs["scipy-jax"], oks["scipy-jax"], IDENTIFIABLE),
+        "flagged_rate_by_param": {
+            k: float(np.mean(v)) for k, v in runs["ours"]["result"][2].items()},
         "success_rate": float(np.mean(oks["ours"])),
         "success_rate_peer_set": float(np.mean(oks["ours-peer-set"])),
         "scipy_success_rate": float(np.mean(oks["scipy-numpy"])),
@@ -231,9 +234,9 @@ def _configs(seed: int, pool: int) -> list[dict]:
         ts = simulate_trials(name, n, seed=seed + 1)
         call = _ours(ts, name, solver=solver, ftol=ftol, chunk_size=min(chunk, n))
         timed(call)  # compile
-        seconds, (u, ok) = timed(call)
+        seconds, result = timed(call)
         points.append(_point(f"{solver} {name} ftol={ftol:g} chunk={min(chunk, n)} float64",
-                             seconds, n, get_model(name), (u, ok), ts))
+                             seconds, n, get_model(name), result, ts))
     return points
 
 
