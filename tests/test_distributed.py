@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from frictionfit.distributed import concat_results, fit_distributed, partition
+from frictionfit.distributed import concat_results, fit_distributed, partition, take_trials
 from frictionfit.errors import FitError
 from frictionfit.fit import fit_trials
 from frictionfit.simulation.trials import simulate_trials
@@ -33,6 +33,14 @@ def test_partition_covers_every_trial_once():
         partition(0, 2)
 
 
+def test_partition_never_splits_a_group():
+    groups = np.array(["a", "a", "a", "b", "b", "c"])
+    parts = partition(6, 2, groups)
+    assert [(p.start, p.stop) for p in parts] == [(0, 3), (3, 6)]
+    with pytest.raises(FitError, match="groups must be contiguous"):
+        partition(3, 2, ["a", "b", "a"])
+
+
 def test_distributed_fit_equals_local_fit(client, trials):
     ts = trials
     args = (ts.y, ts.t, (ts.t_out, ts.t_back))
@@ -56,6 +64,10 @@ def test_concat_of_chunks_keeps_trial_order(trials):
     assert merged.n_trials == 5
     assert merged.values[2] == b.values[0]
     assert merged.wall_s == pytest.approx(a.wall_s + b.wall_s)
+    back = take_trials(merged, slice(2, 5))
+    assert back.values == b.values and back.model == b.model
+    np.testing.assert_array_equal(back.direction, b.direction)
+    np.testing.assert_array_equal(back.drive_input[0], b.drive_input[0])
 
 
 def test_unreachable_scheduler_is_a_named_error(trials):

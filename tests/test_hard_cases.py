@@ -1,0 +1,122 @@
+"""Numerical stability on the hard-case gallery: right answer or explicit status, never a crash.
+
+The whole gallery (16 cases, 34 trials) is fitted once per module, cases that share a
+model batched into one call, and every fit is followed by its Laplace posterior.
+Each case then asserts: no exception out of the batch, no NaN without a status or
+flag, no converged-and-unflagged value outside the case's tolerance (fit) or more
+than 4 sd plus tolerance from the truth (posterior), finite Jacobians at the truth
+and the fitted points, and bit-identical results for identical trials.
+"""
+
+import numpy as np
+import pytest
+
+from frictionfit.bench.hard_cases import CaseFit, fit_cases, judge
+from frictionfit.simulation.hard_cases import CASES, NOISE_SD, hard_cases, truth_unconstrained
+
+#: Cases that expose bugs in code this suite does not own; see the reasons.
+KNOWN_BUGS: dict[str, str] = {
+    "clipped": "fit_trials has no saturation check: the clipped static peak is fitted as a "
+               "converged, unflagged f_static_excess ~0.125 N (truth 0.4 N)",
+    "one_sample_phase": "a 1-sample out phase leaves the initial guess at a local minimum "
+                        "(f_kin ~0.008 N, truth 0.8 N; contact never slips) reported "
+                        "converged with f_kin unflagged",
+    "dead_channel": "fit_trials computes R^2 = 1 - chi2/total_ss with total_ss = 0 for a "
+                    "constant channel: the RuntimeWarning (an error under the test "
+                    "settings) escapes the batch",
+}
+#: Cases whose Laplace posterior exposes bugs in code this suite does not own.
+_OVERFLOW = ("Param.to_physical computes 1/(1+exp(-u)) in NumPy: for the quantiles "
+             "mode +- z*sd of an unidentifiable parameter (|u| > 709) it warns 'overflow "
+             "encountered in exp' (an error under the test settings) out of sample_posterior")
+KNOWN_LAPLACE_BUGS: dict[str, str] = {
+    **KNOWN_BUGS, **dict.fromkeys(
+        ("near_zero_friction", "missing_30pct", "pure_noise", "extreme_start"), _OVERFLOW)}
+#: Fitted on its own: its warning would otherwise send the whole batch case by case.
+ALONE = ("dead_channel",)
+
+
+@pytest.fixture(scope="module")
+def gallery():
+    return hard_cases(seed=0)
+
+
+@pytest.fixture(scope="module")
+def results(gallery):
+    together = fit_cases({n: c for n, c in gallery.items() if n not in ALONE})
+    return {**together, **fit_cases({n: gallery[n] for n in ALONE})}
+
+
+def _cases(bugs):
+    return [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=bugs[n]))
+            if n in bugs else n for n in CASES]
+
+
+@pytest.mark.parametrize("name", _cases(KNOWN_BUGS))
+def test_fit_ends_right_or_flagged(name, gallery, results):
+    outcomes = judge(gallery[name], results[name])
+    failed = [o for o in outcomes if not o.passed]
+    assert not failed, failed
+
+
+@pytest.mark.parametrize("name", _cases(KNOWN_LAPLACE_BUGS))
+def test_laplace_ends_right_or_flagged(name, gallery, results):
+    outcomes = judge(gallery[name], results[name])
+    assert all(o.laplace != "not_run" for o in outcomes)
+    failed = [o for o in outcomes if not o.laplace_passed]
+    assert not failed, failed
+
+
+def test_identical_trials_are_bit_identical_alone_and_in_the_batch(gallery, results):
+    case = gallery["identical_trials"]
+    alone = fit_cases({"identical_trials": case}, uncertainty=False)["identical_trials"]
+    batched = results["identical_trials"]
+    assert all(np.array_equal(u, alone.u[0]) for u in alone.u)
+    # Same seed, same data: the same bits whether fitted alone or among other cases.
+    assert all(np.array_equal(a, b) for a, b in zip(alone.u, batched.u, strict=True))
+
+
+def test_gallery_is_deterministic_and_named():
+    a = hard_cases(["pure_noise", "missing_30pct"], seed=4)
+    b = hard_cases(["pure_noise", "missing_30pct"], seed=4)
+    c = hard_cases(["pure_noise"], seed=5)
+    assert np.array_equal(a["pure_noise"].y, b["pure_noise"].y)
+    assert not np.array_equal(a["pure_noise"].y, c["pure_noise"].y)
+    assert np.isnan(a["missing_30pct"].y).mean() >= 0.3
+    assert np.std(a["pure_noise"].y) == pytest.approx(NOISE_SD, rel=0.1)
+    with pytest.raises(ValueError, match=r"unknown hard case\(s\) \['sticky'\]"):
+        hard_cases(["sticky"])
+
+
+def test_gallery_cases_stress_what_they_say():
+    cases = hard_cases(["float32_input", "dead_channel", "clipped", "huge_offset"], seed=0)
+    assert cases["float32_input"].y.dtype == np.float32
+    assert np.ptp(cases["dead_channel"].y) == 0.0
+    clipped = cases["clipped"].y[0]
+    assert np.sum(clipped == clipped.max()) + np.sum(clipped == clipped.min()) > 20
+    assert np.median(cases["huge_offset"].y) > 1e3
+
+
+def _fake(case, flags=None, **values):
+    """A CaseFit that reports the truth, except ``values``; converged, with small stderr."""
+    row = {**case.truth, **values}
+    n = case.n_trials
+    return CaseFit(status=np.zeros(n, dtype=int), values=[row] * n,
+                   stderr=[dict.fromkeys(row, 1e-3)] * n, flags=[flags or {}] * n,
+                   u=[truth_unconstrained(case)] * n)
+
+
+def test_judge_calls_a_converged_unflagged_miss_confidently_wrong(gallery):
+    case = gallery["nominal"]
+    assert judge(case, _fake(case))[0].outcome == "correct"
+    o = judge(case, _fake(case, f_kin=2.0))[0]
+    assert o.outcome == "confident_wrong" and not o.passed and "f_kin=2 (truth 0.8)" in o.detail
+
+
+def test_judge_accepts_a_flag_or_status_and_catches_silent_nan(gallery):
+    case = gallery["pure_noise"]
+    assert judge(case, _fake(case, flags={"f_kin": "at bound"}, f_kin=2.0))[0].outcome == "flagged"
+    assert judge(case, _fake(case, f_kin=float("nan")))[0].outcome == "silent_nan"
+    error = judge(case, RuntimeError("boom"))
+    assert [o.outcome for o in error] == ["error"] * case.n_trials
+    assert error[0].detail == "RuntimeError: boom"
