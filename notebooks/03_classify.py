@@ -1,0 +1,121 @@
+# ---
+# jupyter:
+#   jupytext:
+#     formats: ipynb,py:percent
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # 03 — Classify materials: every feature set side by side
+#
+# **Question:** which feature set recognises a material measured on another day best,
+# which classes does each confuse, and what does the SVM on the physical features
+# actually rely on?
+#
+# To stay quick we take 12 of the 35 simulated classes, chosen to include the
+# deliberately close pairs (the two curtains, paper and banknote, PE bag and cling film),
+# each with one and two layers, three measurements per class in each of two sessions.
+# The protocol is leave-one-session-out: train on one day, test on the other.
+
+# %%
+import time
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+from sklearn.inspection import permutation_importance
+from sklearn.metrics import ConfusionMatrixDisplay
+from sklearn.pipeline import make_pipeline as sk_pipeline
+from sklearn.preprocessing import StandardScaler
+
+from frictionfit.classify import evaluate, make_classifier
+from frictionfit.features import make_features
+from frictionfit.simulation.measurements import simulate_measurements
+
+MATERIALS = ("curtain-rose", "curtain-white", "paper", "banknote", "pe-bag", "saran-wrap")
+CLASSES = [f"{m}-{layers}" for m in MATERIALS for layers in (1, 2)]
+specs = [(session, label, trial) for session in (1, 2) for label in CLASSES
+         for trial in (1, 2, 3)]
+recs = simulate_measurements(specs, seed=3)
+print(len(recs), "measurements of", len(CLASSES), "classes in 2 sessions")
+
+# %% [markdown]
+# ## Every feature set, the same protocol
+# `physical` fits the contact model to every motion and channel (the costly one; its rows
+# are cached by recording content, so the second fold and the later cells reuse them).
+
+# %%
+FEATURE_SETS = ("physical", "handcrafted", "fftbins", "raw", "physical,handcrafted")
+results, rows = {}, []
+for names in FEATURE_SETS:
+    start = time.perf_counter()
+    ev = evaluate(recs, names, "svm-ovo", "leave-one-session-out", seed=0)
+    results[names] = ev
+    rows.append({"features": names, "accuracy": ev.accuracy, "macro_f1": ev.macro_f1,
+                 "fold accuracies": np.round(ev.fold_accuracy, 3).tolist(),
+                 "layers right": ev.derived_accuracy("layers", recs),
+                 "material right": ev.derived_accuracy("material", recs),
+                 "seconds": time.perf_counter() - start})
+table = pd.DataFrame(rows).set_index("features")
+table.round(3)
+
+# %% [markdown]
+# ## Confusion matrices
+# Rows are the true class, columns the predicted one (pooled over both test sessions).
+
+# %%
+fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+best_other = table.drop(index="physical")["accuracy"].idxmax()
+for ax, names in zip(axes, ("physical", best_other), strict=True):
+    cm = results[names].confusion
+    ConfusionMatrixDisplay(cm.to_numpy(), display_labels=cm.index).plot(
+        ax=ax, colorbar=False, xticks_rotation=90)
+    ax.set_title(f"{names}: accuracy {results[names].accuracy:.2f}")
+fig.tight_layout()
+for names in ("physical", best_other):
+    cm = results[names].confusion
+    off = cm.to_numpy() - np.diag(np.diag(cm.to_numpy()))
+    worst = np.dstack(np.unravel_index(np.argsort(off, axis=None)[::-1][:3], off.shape))[0]
+    print(names, "most confused:",
+          [(cm.index[i], cm.columns[j], int(off[i, j])) for i, j in worst if off[i, j]])
+
+# %% [markdown]
+# ## What does the SVM rely on? Permutation importance on the physical features
+# The physical features (cached above) are standardised within each session, the SVM is
+# trained on session 1 and each feature is shuffled in turn on session 2: the drop in
+# accuracy is that feature's importance. We sum the importances over the four channels.
+
+# %%
+phys = make_features("physical")
+X = pd.DataFrame(phys.fit_transform(recs), columns=phys.get_feature_names_out())
+session = np.array([r.metadata["session"] for r in recs])
+labels = np.array([r.metadata["label"] for r in recs])
+Xz = X.groupby(session).transform(lambda c: (c - c.mean()) / (c.std(ddof=0) + 1e-12))
+train, test = session == 1, session == 2
+svm = sk_pipeline(StandardScaler(), make_classifier("svm-ovo")).fit(Xz[train], labels[train])
+print(f"session 1 -> 2 accuracy: {svm.score(Xz[test], labels[test]):.3f}")
+imp = permutation_importance(svm, Xz[test], labels[test], n_repeats=5, random_state=0)
+per_feature = pd.Series(imp.importances_mean, index=X.columns)
+quantity = per_feature.index.str.split(":").str[1]
+by_quantity = per_feature.groupby(quantity).sum().sort_values(ascending=False)
+ax = by_quantity.head(15)[::-1].plot.barh(figsize=(7, 5))
+ax.set(xlabel="accuracy drop when shuffled (summed over channels)",
+       title="What the SVM relies on (physical features)")
+by_quantity.head(10).round(3)
+
+# %% [markdown]
+# ## What we learned
+# Trained on one day and tested on the other, on 12 deliberately close classes, the
+# physical features score 0.58 (folds 0.53 / 0.64), well ahead of handcrafted (0.35),
+# FFT bins (0.31) and raw signals (0.24); adding the handcrafted set to physical does not
+# help (0.54). Every set with physical features gets the layer count right (1.00), and most
+# errors fall inside the designed look-alike pairs (curtain-rose vs curtain-white, paper-2
+# vs banknote-2). The SVM leans mostly on the model-free shape of the back stroke's
+# relaxation (`relax_200ms`, `relax_400ms`, `relaxed_frac`) and the slip ripple; of the
+# fitted parameters only `k` and `tau` reach the top ten, and the fitted `f_kin` does not.
