@@ -32,6 +32,10 @@ SCALING = {"stage": "scaling", "summary": {"scaling_exponent": 0.93},
            "points": [{"trials": n, "seconds": n * 0.01, "max_rss_mb": 500.0}
                       for n in (10, 100)],
            "lengths": [{"duration_s": 0.5, "trials": 8, "seconds_per_trial": 0.002}]}
+HARD = {"stage": "hard_cases", "summary": {"hard_cases_total": 1, "hard_cases_fit_passed": 0},
+        "cases": [{"case": "clipped", "trial": 0, "status": "converged",
+                   "outcome": "confident_wrong", "passed": False, "detail": "f_kin=2 (truth 1)",
+                   "laplace": "correct", "laplace_passed": True, "laplace_detail": ""}]}
 DASK = {"stage": "dask", "summary": {"trials": 64, "local_s": 2.0, "dask_s": 1.25,
                                      "workers": 2, "dask_speedup_2_workers": 1.6}}
 
@@ -57,7 +61,8 @@ def test_merge_summary_keeps_every_stage_key_and_adds_scaling_and_dask():
 
 
 def test_write_report_files(tmp_path):
-    bench = merge([FIT, UNC, CLS], scaling=SCALING, dask=DASK, command="frictionfit bench all")
+    bench = merge([FIT, UNC, CLS], scaling=SCALING, dask=DASK, hard_cases=HARD,
+                  command="frictionfit bench all")
     paths = write_report(bench, tmp_path / "out")
     data = json.loads(paths["json"].read_text())  # strict JSON: NaN became null
     assert data["stages"]["fit"]["points"][3]["error"] is None
@@ -65,6 +70,9 @@ def test_write_report_files(tmp_path):
     md = paths["markdown"].read_text()
     assert "| dogleg | 0.02 | median rel. error | 0.01 | **yes** |" in md
     assert "speed-up 1.6x" in md and "`frictionfit bench all`" in md
+    row = "| clipped | 0 | converged | confident_wrong | correct | **NO** | f_kin=2 (truth 1) |"
+    assert row in md
+    assert data["summary"]["hard_cases_fit_passed"] == 0
     assert paths["plot"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
