@@ -26,8 +26,13 @@ largest peak of the PC1 spectrum outside the grip-loop line (2.0-2.6 Hz), its
 amplitude (sd of PC1 / its 5-95 % range), the slip asymmetry (skewness of the
 sample-to-sample change: slow loading, fast slip gives a negative value), slip
 events per 100 mm, each taxel's amplitude relative to the taxels' geometric mean
-(16), and each taxel's spectral shape: log power in 8 log-spaced bands from 0.25 to
-17.5 Hz minus the log of its total power (8 x 16).
+(16), and each taxel's spectral shape: log mean power in 8 log-spaced bands from
+0.25 to 17.5 Hz (a band without a Welch bin takes the nearest bin) minus the log of
+its total power (8 x 16). The grip-loop line (2.0-2.6 Hz; mechanical, its
+frequency does not follow the speed and its strength differs between recording
+runs) is left out of the bands and of the total: with it, the bands partly
+identify the run instead of the fabric (leave-one-pressure-out 0.929 with it,
+0.960 without).
 """
 
 from __future__ import annotations
@@ -49,7 +54,9 @@ __all__ = ["SlidingPhysicalFeatures", "fit_breakaway", "slide_drive", "steady_fe
 RAMP_FRACTION = 0.079
 #: Band (Hz) of the speed-independent grip-loop line, excluded from the stick-slip peak.
 GRIP_LOOP_HZ = (2.0, 2.6)
-BAND_EDGES_HZ = np.geomspace(0.25, 17.5, 9)
+#: Bands (Hz) of the per-taxel spectral shape: log-spaced, either side of the grip-loop line.
+BANDS_HZ = ((0.25, 0.42), (0.42, 0.72), (0.72, 1.23), (1.23, 2.0),
+            (2.6, 3.55), (3.55, 6.04), (6.04, 10.3), (10.3, 17.5))
 CONTACT_MODEL = "relaxation"
 #: Points of the whole-slide observable the contact model is fitted to.
 N_FIT = 128
@@ -110,12 +117,12 @@ def steady_features(rec: Recording) -> np.ndarray:
     sd = np.maximum(x.std(axis=0), 1e-12)
     amp = np.log(sd) - np.log(sd).mean()
     f, p = signal.welch(x, fs, nperseg=min(64, x.shape[0]), axis=0)
-    total = np.log(p.sum(axis=0) + 1e-300)
-    mid = np.sqrt(BAND_EDGES_HZ[:-1] * BAND_EDGES_HZ[1:])
+    texture = (f < GRIP_LOOP_HZ[0]) | (f > GRIP_LOOP_HZ[1])
+    total = np.log(p[texture].sum(axis=0) + 1e-300)
     bands = []
-    for lo, hi, centre in zip(BAND_EDGES_HZ[:-1], BAND_EDGES_HZ[1:], mid, strict=True):
-        inside = (f >= lo) & (f < hi)
-        power = p[inside].mean(axis=0) if inside.any() else p[np.argmin(abs(f - centre))]
+    for lo, hi in BANDS_HZ:
+        inside = (f >= lo) & (f < hi) & texture
+        power = p[inside].mean(axis=0) if inside.any() else p[np.argmin(abs(f - np.sqrt(lo * hi)))]
         bands.append(np.log(power + 1e-300) - total)
     return np.concatenate([cycle, amp, np.ravel(bands)])
 
@@ -224,7 +231,6 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     def _names(self) -> list[str]:
         fit = [f"sliding:log_{n}" if i < 4 else f"sliding:{n}" for i, n in enumerate(_FIT_NAMES)]
         amp = [f"sliding:amplitude_share:{c} [log]" for c in TAXELS]
-        bands = [f"sliding:band_{lo:.2g}-{hi:.2g}Hz:{c} [log share]"
-                 for lo, hi in zip(BAND_EDGES_HZ[:-1], BAND_EDGES_HZ[1:], strict=True)
-                 for c in TAXELS]
+        bands = [f"sliding:band_{lo:.3g}-{hi:.3g}Hz:{c} [log share]"
+                 for lo, hi in BANDS_HZ for c in TAXELS]
         return fit + [f"sliding:{n}" for n in _CYCLE_NAMES] + amp + bands
