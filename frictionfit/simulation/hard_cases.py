@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import jax
@@ -165,9 +165,9 @@ def _extreme_u0(case: HardCase) -> HardCase:
     params = get_model(case.model).params
     sign = np.where(np.arange(case.n_trials) % 2 == 0, 1.0, -1.0)[:, None]
     u0 = np.where([p.transform == "identity" for p in params], 0.0, 25.0 * sign)
-    return HardCase(**{**case.__dict__, "name": "extreme_start", "u0": u0,
-                       "description": "every bounded parameter starts at u = +-25 "
-                                      "(within 1e-11 of a bound)"})
+    return replace(case, name="extreme_start", u0=u0,
+                   description="every bounded parameter starts at u = +-25 (within 1e-11 "
+                               "of a bound, in the transform's span)")
 
 
 _FRICTION = {"f_kin": (0.05, 0.01), "offset": (0.0, 0.01)}
@@ -217,9 +217,9 @@ _BUILDERS: dict[str, Callable[[int], HardCase]] = {
     "float32_input": lambda s: _case(
         "float32_input", "the force arrives as float32", "stick_slip", 2, s, _FRICTION,
         y_map=_float32, accept=("correct",)),
-    "identical_trials": lambda s: HardCase(**{**_case(
+    "identical_trials": lambda s: replace(_case(
         "identical_trials", "four bit-identical copies of one trial", "stick_slip", 4, s,
-        _FRICTION, y_map=_repeat, accept=("correct",)).__dict__, "bit_identical": True}),
+        _FRICTION, y_map=_repeat, accept=("correct",)), bit_identical=True),
 }
 _BUILDERS["extreme_start"] = lambda s: _extreme_u0(_case(
     "extreme_start", "", "stick_slip", 2, s, _FRICTION))
