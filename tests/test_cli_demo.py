@@ -32,3 +32,4 @@ def test_demo_segments_fits_and_compares_with_truth(tmp_path):
     assert "segmented 16 motions" in result.output
     assert "[[Variables]]" in result.output and "truth vs fit" in result.output
     assert (tmp_path / "fits.csv").exists()
+    assert "accuracy on the sample data: " in result.output

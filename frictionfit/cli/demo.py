@@ -1,4 +1,4 @@
-"""``frictionfit demo``: read the sample data in ``data/``, segment, fit, compare with truth."""
+"""``frictionfit demo``: read the sample data in ``data/``, segment, fit, compare, classify."""
 
 from __future__ import annotations
 
@@ -26,13 +26,38 @@ def _sample_recordings(data: Path, out: Path) -> list:
     return read_dataset(data)
 
 
+def _classify(recs: list, fitted: bool) -> None:
+    """Train on a small simulated set (other sessions) and classify the sample recordings."""
+    from frictionfit.classify import labels_of, make_pipeline
+    from frictionfit.simulation.measurements import simulate_measurements
+
+    classes = sorted({str(r.label) for r in recs})
+    train = simulate_measurements([(s, c, t) for s in (2, 3) for c in classes for t in (1, 2)],
+                                  SAMPLE["seed"])
+    kind = "fitted + measured" if fitted else "measured"
+    typer.echo(f"\nclassification: physical features ({kind}), RBF SVM, trained on "
+               f"{len(train)} simulated measurements of sessions 2-3")
+    pipe = make_pipeline("physical", "svm-ovo", normalise_by=None, fitted=fitted)
+    predicted = pipe.fit(train, labels_of(train)).predict(recs)
+    for rec, label in zip(recs, predicted, strict=True):
+        verdict = "ok" if label == rec.label else "WRONG"
+        typer.echo(f"  {rec.name:24s} predicted {label:18s} {verdict}")
+    hits = sum(str(p) == str(r.label) for p, r in zip(predicted, recs, strict=True))
+    typer.echo(f"accuracy on the sample data: {hits}/{len(recs)}")
+
+
 def demo(
     data: Path = typer.Option(Path("data"), help="Folder of sample recordings."),
     out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
     channel: str = typer.Option("index_x", help="Channel to fit."),
     model: str = typer.Option("relaxation", help="Model of the family to fit, or 'auto'."),
+    classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
+                                  "and classify the sample data."),
+    fitted_features: bool = typer.Option(False, help="Classify with fitted model parameters "
+                                         "too (about 30 s more), not only measured quantities."),
 ) -> None:
-    """Segment the sample measurements, fit every motion, and compare with the simulator's truth."""
+    """Segment the sample measurements, fit every motion, compare with the simulator's truth,
+    and classify them."""
     import numpy as np
 
     from frictionfit.fit import fit_report, fit_trials
@@ -74,3 +99,5 @@ def demo(
             cells.append(f"{true:8.3g}/{fit:<8.3g}")
         typer.echo(f"{rec.name:22s} " + " ".join(cells))
     typer.echo(f"\nall fits: {out / 'fits.csv'}")
+    if classify:
+        _classify(recs, fitted_features)
