@@ -63,8 +63,12 @@ def _solve(model, free, starts, data, opts):
             resid[best], jtj[best])
 
 
-def _fit_member(model, t_mask, data, u_start, fixed, opts):
-    """Fit one member: multi-start solve, statistics; returns a dict of per-trial arrays."""
+def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
+    """Fit one member: multi-start solve, statistics; returns a dict of per-trial arrays.
+
+    ``extra_starts`` (k, n_trials, n_params): further starting points (e.g. the
+    smaller family member's optimum), tried besides the data-driven ones.
+    """
     names = model.param_names
     free = tuple(j for j, n in enumerate(names) if n not in fixed)
     base = u_start.copy()
@@ -73,6 +77,11 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts):
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
     data = (*data, base)
     starts = multi_starts(model, base, opts["n_starts"], opts["seed"])
+    if extra_starts is not None:
+        extra = np.array(extra_starts, dtype=np.float64)
+        held = [j for j in range(len(names)) if j not in free]
+        extra[:, :, held] = base[None][:, :, held]
+        starts = np.concatenate([starts, extra])
     u, converged, nonfinite, steps, resid, jtj = _solve(model, free, starts, data, opts)
     stats = statistics(model, u, resid, jtj, t_mask, free,
                        [n for n in fixed if n in names and n not in opts["tied"]])
@@ -220,11 +229,12 @@ def fit_trials(
                 n_starts=max(int(n_starts), 1), seed=seed, tied=())
     names = [m.name for m in FAMILY] if model == "auto" else [model]
     members = [get_model(n, drive=drive, stroke_mm=stroke_mm) for n in names]
-    fits = {}
+    fits, previous = {}, None
     for member in members:
         start_u = np.array(u0 if (u0 is not None and model != "auto") else initial_guess(
             member, t, y, *guess_times, direction), dtype=np.float64)
-        fit = _fit_member(member, mask, data, start_u, fix, opts)
+        fit = _fit_member(member, mask, data, start_u, fix, opts,
+                          _warm_start(member, start_u, previous))
         if tie:
             means, errs = _tie(fit, member, tie, np.asarray(groups))
             refit = _fit_member(member, mask, data, fit["u"], {**fix, **means},
@@ -234,6 +244,7 @@ def fit_trials(
                     refit["stderr"][i][name] = float(errs[name][i])
             fit = refit
         fits[member.name] = fit
+        previous = (member, fit["u"])
     bic = pd.DataFrame({n: fits[n]["bic"] for n in names})
     chosen = choose(bic)
     rows = [fits[name] for name in chosen]
@@ -255,3 +266,18 @@ def fit_trials(
         drive_input=drive_input, drive=drive, stroke_mm=stroke_mm,
     )
 
+
+def _warm_start(member, start_u, previous):
+    """``(1, n, p)``: the smaller member's optimum for the shared parameters, else ``None``.
+
+    With ``model="auto"`` each member also starts where the smaller one ended, so a
+    bigger member fits at least about as well and the BIC compares nested optima.
+    """
+    if previous is None:
+        return None
+    small, u_small = previous
+    warm = start_u.copy()
+    for j, name in enumerate(member.param_names):
+        if name in small.param_names:
+            warm[:, j] = u_small[:, small.param_names.index(name)]
+    return warm[None]
