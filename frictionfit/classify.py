@@ -118,13 +118,14 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
     state, so every feature shifts and scales from day to day. This wrapper computes
     ``features`` and z-scores each feature within each value of ``metadata[key]``,
     using only that session's own (unlabelled) recordings, at training and at
-    prediction time alike. A session with fewer than ``min_group`` recordings in a
-    ``transform`` call, or recordings without ``key``, cannot be standardised by
-    itself: it uses the mean of the training sessions' statistics instead (no
-    correction of that day's drift) and a warning says so. Predictions for a whole
-    new session are therefore best made in one call. When no training session has
-    ``min_group`` recordings (e.g. gesture or FabricSlide data without sessions),
-    the wrapper passes the features through unchanged.
+    prediction time alike: a session seen in training keeps its training
+    statistics; a new session with at least ``min_group`` recordings in the
+    ``transform`` call gets its own. A smaller new session (and recordings without
+    ``key``) cannot be standardised by itself: it uses the mean of the training
+    sessions' statistics instead (no correction of that day's drift) and a warning
+    says so. Predictions for a whole new session are therefore best made in one
+    call. When the training data have no sessions (e.g. gesture or FabricSlide
+    data), the wrapper passes the features through unchanged.
 
     Parameters
     ----------
@@ -132,11 +133,11 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         A feature set over recordings.
     key : str, default "session"
         The metadata key naming the session.
-    min_group : int, default 20
+    min_group : int, default 10
         Fewest recordings of a session standardised by their own statistics.
     """
 
-    def __init__(self, features, key: str = "session", min_group: int = 20):
+    def __init__(self, features, key: str = "session", min_group: int = 10):
         self.features = features
         self.key = key
         self.min_group = min_group
@@ -151,13 +152,13 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         raw = self.features_.fit_transform(X, y)
         groups = self._groups(X)
         self.n_features_in_ = 1
-        stats = [self._stats(raw[groups == g]) for g in set(groups)
-                 if g is not None and (groups == g).sum() >= self.min_group]
-        self.active_ = bool(stats)
+        self.session_stats_ = {g: self._stats(raw[groups == g]) for g in set(groups)
+                               if g is not None and (groups == g).sum() >= 2}
+        self.active_ = bool(self.session_stats_)
         if not self.active_:  # no sessions in the training data: nothing to correct
             return raw
-        self.mean_ = np.mean([m for m, _ in stats], axis=0)
-        self.scale_ = np.mean([s for _, s in stats], axis=0)
+        self.mean_ = np.mean([m for m, _ in self.session_stats_.values()], axis=0)
+        self.scale_ = np.mean([s for _, s in self.session_stats_.values()], axis=0)
         return self._normalised(raw, groups)
 
     def transform(self, X) -> np.ndarray:
@@ -178,11 +179,14 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         small = []
         for g in {g for g in groups if g is not None}:
             rows = groups == g
-            if rows.sum() >= self.min_group:
+            if g in self.session_stats_:  # a training session: its training statistics
+                mean, scale = self.session_stats_[g]
+            elif rows.sum() >= self.min_group:  # a new session: its own statistics
                 mean, scale = self._stats(raw[rows])
-                out[rows] = (raw[rows] - mean) / scale
             else:
                 small.append(g)
+                continue
+            out[rows] = (raw[rows] - mean) / scale
         if small or any(g is None for g in groups):
             warnings.warn(f"{self.key} {sorted(map(str, small))} (or recordings without "
                           f"{self.key!r}) have fewer than {self.min_group} recordings: "
@@ -200,7 +204,7 @@ def labels_of(recordings: Sequence[Recording], key: str = "label") -> np.ndarray
     if missing:
         raise DatasetError(f"recording {missing[0]!r} has no metadata {key!r} "
                            f"({len(missing)} of {len(recordings)} lack it)")
-    return np.asarray([r.metadata[key] for r in recordings], dtype=object)
+    return np.asarray([r.metadata[key] for r in recordings])
 
 
 def splits(recordings: Sequence[Recording], protocol: str, y: np.ndarray, *,

@@ -121,6 +121,10 @@ def test_measured_phase_by_hand():
     assert got["t_relax"] == pytest.approx(0.252, abs=1.5e-3)
     assert got["onset_rate"] == pytest.approx(20.0)
     assert got["t_peak"] == pytest.approx(0.1)
+    # 50/100/200/400 ms after the peak the signal is 2.875, 2.75, 2.5, 2.0: minus 1, over 2
+    curve = [got[f"relax_{ms}ms"] for ms in (50, 100, 200, 400)]
+    assert curve == pytest.approx([0.9375, 0.875, 0.75, 0.5])
+    assert 0.0 <= got["slip_ripple"] < 0.01  # piecewise linear: no stick-slip ripple
 
 
 def test_physical_measured_features_are_offset_free():

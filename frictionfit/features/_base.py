@@ -101,7 +101,7 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         params = {k: v for k, v in self.get_params(deep=False).items() if k != "cache"}
         cls = type(self)
         return joblib.hash((CACHE_VERSION, cls.__module__, cls.__qualname__, self._version,
-                            sorted((k, repr(v)) for k, v in params.items())))
+                            sorted((k, repr(v)) for k, v in params.items()), self._names()))
 
     def _rows(self, recordings: Sequence[Recording]) -> np.ndarray:
         """Rows for ``recordings``: cached ones loaded, all missing ones extracted in one batch."""
@@ -116,8 +116,9 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         out = np.empty((len(recordings), n_out))
         missing = []
         for i, k in enumerate(keys):
-            if stored.check_call_in_cache(ekey, k):
-                out[i] = stored(ekey, k)
+            row = stored(ekey, k) if stored.check_call_in_cache(ekey, k) else None
+            if row is not None and np.shape(row) == (n_out,):
+                out[i] = row
             else:
                 missing.append(i)
         blocks = [missing[i:i + (self._block or len(missing))]
@@ -128,7 +129,8 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
             rows = self._checked(self._extract([recordings[i] for i in block]),
                                  len(block), n_out)
             for i, row in zip(block, rows, strict=True):
-                out[i] = stored(ekey, keys[i], row=row)
+                stored(ekey, keys[i], row=row)  # stores the row on a cache miss
+                out[i] = row
             bar.update(len(block))
         bar.close()
         return out

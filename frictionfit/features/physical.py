@@ -21,7 +21,10 @@ command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
 ``t_relax`` (s, from the peak until the deviation has covered 63% of the way to
 its final level: a model-free relaxation time), ``onset_rate`` (N/s, the largest
 slope between the command and the peak: loading stiffness times drive speed) and
-``t_peak`` (s).
+``t_peak`` (s); ``slip_ripple`` (1, the standard deviation of the signal minus its
+25-sample moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
+oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
+50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free.
 
 **Missing values.** A trial whose fit fails (any status but CONVERGED and
 ILL_CONDITIONED, whose values stand though some may be poorly determined; and
@@ -61,7 +64,13 @@ __all__ = ["FITTED", "MEASURED", "PhysicalFeatures", "measured_phase"]
 FITTED = ("k", "f_kin", "f_static_excess", "static_kinetic_ratio", "relax_frac", "tau")
 #: Measured quantities per phase and their units.
 MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "s"),
-            ("onset_rate", "N/s"), ("t_peak", "s"))
+            ("onset_rate", "N/s"), ("t_peak", "s"), ("slip_ripple", "1"),
+            ("relax_50ms", "1"), ("relax_100ms", "1"), ("relax_200ms", "1"),
+            ("relax_400ms", "1"))
+#: Delays after the peak (s) of the normalised relaxation curve ``relax_<ms>ms``.
+RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
+#: Window (s) after the command in which the stick-slip ripple is measured.
+RIPPLE_S = 0.25
 
 
 def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
@@ -84,13 +93,21 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
     after = idx[idx >= i_peak]
     target = rise - 0.63 * (rise - static)
     crossed = after[np.sign(rise) * (dev[after] - target) <= 0]
+    if rise == 0:
+        return out
+    ripple = idx[idx < i_cmd + int(round(RIPPLE_S * rate_hz))]
+    smooth = moving_average(dev[ripple], 25)
+    curve = [dev[i] / rise if i < i_end and np.isfinite(dev[i]) else np.nan
+             for i in (i_peak + np.round(np.asarray(RELAX_DELAYS) * rate_hz).astype(int))]
     out[:] = [
         rise,
         static,
-        1.0 - static / rise if rise != 0 else np.nan,
+        1.0 - static / rise,
         (crossed[0] - i_peak) / rate_hz if crossed.size else np.nan,
         slopes.max() if slopes.size else np.nan,
         (i_peak - i_cmd) / rate_hz,
+        np.std(dev[ripple] - smooth) / abs(rise),
+        *curve,
     ]
     return out
 
