@@ -21,8 +21,8 @@ IDENTIFIED = {"k": 3.0, "f_kin": 1.5}
 
 @pytest.fixture(scope="module")
 def fitted():
-    """Three simulated trials plus an all-NaN one, fitted from the truth."""
-    ts = simulate_trials(MODEL, 3, seed=3, snr_db=30, params=IDENTIFIED)
+    """Two simulated trials plus an all-NaN one, fitted from the truth."""
+    ts = simulate_trials(MODEL, 2, seed=3, snr_db=30, params=IDENTIFIED)
     y = np.vstack([ts.y, np.full(ts.y.shape[1], np.nan)])
     names = get_model(MODEL).param_names
     u0 = np.stack([PARAMS[n].to_unconstrained(ts.truth[n]) for n in names], axis=-1)
@@ -32,17 +32,33 @@ def fitted():
 
 @pytest.fixture(scope="module")
 def both(fitted, tmp_path_factory):
+    """Laplace, and a deliberately short emcee run (100 steps: cannot reach 50 tau)."""
     ts, y, fit = fitted
     args = (fit, y, ts.t, (ts.t_out, ts.t_back))
     chains = tmp_path_factory.mktemp("chains") / "chains.h5"
     return (sample_posterior(*args, method="laplace"),
-            sample_posterior(*args, method="emcee", seed=2, chains_path=chains), chains)
+            sample_posterior(*args, method="emcee", seed=2, nwalkers=12, max_steps=100,
+                             chains_path=chains), chains)
 
 
-def test_laplace_and_emcee_agree_on_a_near_gaussian_posterior(both):
-    lap, mc, _ = both
-    assert mc.converged[:3].all(), mc.reason
-    for i in range(3):
+def test_a_short_chain_is_flagged_not_converged_and_still_reported(both):
+    _, mc, _ = both
+    assert mc.method[:2] == ["emcee", "emcee"] and not mc.converged[:2].any()
+    assert all("NOT CONVERGED after 100 steps" in r for r in mc.reason[:2])
+    assert all(mc.chains[i].n_steps == 100 for i in range(2))
+    assert np.isfinite(mc.sd[0]["k"]) and np.isfinite(mc.tau[0]["k"])
+
+
+@pytest.mark.slow
+def test_laplace_and_emcee_agree_on_a_near_gaussian_posterior(fitted):
+    ts, y, fit = fitted
+    args = (fit, y, ts.t, (ts.t_out, ts.t_back))
+    lap = sample_posterior(*args, method="laplace")
+    mc = sample_posterior(*args, method="emcee", seed=5, max_steps=6000)
+    assert mc.converged[:2].all(), mc.reason
+    for i in range(2):
+        chain = mc.chains[i]
+        assert chain.n_steps >= 50 * chain.tau.max() and chain.acceptance >= 0.1
         for name, q in lap.quantiles[i].items():
             sd = mc.sd[i][name]
             # Twin check: medians within 0.3 posterior sd (MC error ~0.05 sd at ESS > 400),
@@ -51,21 +67,12 @@ def test_laplace_and_emcee_agree_on_a_near_gaussian_posterior(both):
             assert lap.sd[i][name] == pytest.approx(sd, rel=0.3), (i, name)
 
 
-def test_emcee_chains_meet_the_convergence_rule(both):
-    _, mc, _ = both
-    for i in range(3):
-        chain = mc.chains[i]
-        assert chain.n_steps >= 50 * chain.tau.max()
-        assert 0.1 <= chain.acceptance <= 1.0
-        assert min(mc.ess[i].values()) > 100
-
-
 def test_a_trial_whose_fit_failed_is_skipped_and_named(both):
     lap, mc, _ = both
     for post in (lap, mc):
-        assert post.method[3] == "none" and not post.converged[3]
-        assert post.reason[3] == "skipped: fit status insufficient_data"
-        assert np.isnan(post.sd[3]["k"])
+        assert post.method[2] == "none" and not post.converged[2]
+        assert post.reason[2] == "skipped: fit status insufficient_data"
+        assert np.isnan(post.sd[2]["k"])
 
 
 def test_tables_carry_quantiles_sd_tau_ess_and_flags(both):
@@ -74,7 +81,7 @@ def test_tables_carry_quantiles_sd_tau_ess_and_flags(both):
     assert {"k_median [N/mm]", "k_p2.5 [N/mm]", "k_p97.5 [N/mm]", "k_sd [N/mm]",
             "k_tau [steps]", "k_ess", "uq_converged", "uq_acceptance"} <= set(wide.columns)
     long = posterior_summary(mc)
-    assert len(long) == 4 * get_model(MODEL).n_params
+    assert len(long) == 3 * get_model(MODEL).n_params
     row = long[(long.trial == 0) & (long.param == "k")].iloc[0]
     assert row["p16"] < row["median"] < row["p84"] and row["unit"] == "N/mm"
 
@@ -84,27 +91,31 @@ def test_arviz_corner_and_hdf5_chains(both, tmp_path):
     import h5py
 
     with h5py.File(chains) as f:
-        assert {"trial_0", "trial_1", "trial_2"} <= set(f)
+        assert {"trial_0", "trial_1"} <= set(f) and "trial_2" not in f
     data = to_arviz(mc, 0)
     assert set(data.posterior.data_vars) == set(get_model(MODEL).param_names)
     corner_plot(mc, 0, tmp_path / "corner.png")
     assert (tmp_path / "corner.png").stat().st_size > 10_000
-    with pytest.raises(ValueError, match="trial 3 has no emcee chain"):
-        to_arviz(mc, 3)
+    with pytest.raises(ValueError, match="trial 2 has no emcee chain"):
+        to_arviz(mc, 2)
 
 
-def test_auto_keeps_laplace_for_well_identified_trials(fitted):
+def test_auto_sends_exactly_the_doubtful_trials_to_emcee_and_says_why(fitted):
     ts, y, fit = fitted
-    post = sample_posterior(fit, y, ts.t, (ts.t_out, ts.t_back), method="auto")
-    assert post.method[:3] == ["laplace"] * 3, post.reason
-    assert post.reason[:3] == ["laplace ok"] * 3
+    post = sample_posterior(fit, y, ts.t, (ts.t_out, ts.t_back), method="auto", max_steps=50)
+    policy = ("fit status", "flagged:", "ill-conditioned", "non-Gaussian profile")
+    for i in range(2):
+        doubtful = post.reason[i].startswith(policy)
+        assert doubtful or post.reason[i] == "laplace ok", post.reason[i]
+        assert post.method[i] == ("emcee" if doubtful else "laplace")
+    assert post.method[2] == "none"
 
 
 def test_bad_arguments_are_named(fitted):
     ts, y, fit = fitted
     with pytest.raises(FitError, match="unknown uncertainty method 'mcmc'"):
         sample_posterior(fit, y, ts.t, (ts.t_out, ts.t_back), method="mcmc")
-    with pytest.raises(FitError, match="the fit has 4 trials"):
+    with pytest.raises(FitError, match="the fit has 3 trials"):
         sample_posterior(fit, y[:2], ts.t, (ts.t_out, ts.t_back))
 
 

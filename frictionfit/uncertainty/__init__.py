@@ -9,11 +9,15 @@ data it was fitted to and returns a :class:`Posterior` per trial, by one of
   until the chain is >= 50 integrated autocorrelation times long;
 - ``"auto"`` (default): Laplace, except emcee for the trials where Laplace is
   not to be trusted: the fit did not end ``CONVERGED`` (e.g. ill-conditioned),
-  a parameter is flagged (at a bound, stderr > value, singular), the Hessian's
+  a parameter is flagged "at bound" or "singular" by the fit, the Hessian's
   condition number exceeds :data:`AUTO_MAX_COND`, or the log-posterior along a
   parameter's Gaussian profile line, 2 sd out, differs from the Gaussian's drop
   of 2 by more than :data:`AUTO_MAX_PROFILE_DEV` (see
-  :func:`~frictionfit.uncertainty.laplace.profile_disagreement`).
+  :func:`~frictionfit.uncertainty.laplace.profile_disagreement`). The fit's
+  "stderr > value" flag alone does not send a trial to emcee: bounded parameters
+  are Gaussian in their log/logit coordinate, where a wide posterior is fine for
+  Laplace as long as the profile check passes (on 200 simulated ``relaxation``
+  trials that flag was raised in 189 trials; Laplace still covered 70 % / 92 %).
 
 The log-posterior (AR(1) Gaussian likelihood, priors from the parameter bounds)
 is described in :mod:`frictionfit.uncertainty._logpost`.
@@ -62,8 +66,9 @@ def _auto_reason(fit: FitResult, i: int, cond: float, dev: float) -> str:
     """Why trial ``i`` needs emcee under the ``auto`` policy ("" when Laplace is fine)."""
     if fit.status[i] != Status.CONVERGED:
         return f"fit status {Status(int(fit.status[i])).name.lower()}"
-    if fit.flags[i]:
-        return "flagged: " + ", ".join(f"{k} {v}" for k, v in fit.flags[i].items())
+    bad = {k: v for k, v in fit.flags[i].items() if v in ("at bound", "singular")}
+    if bad:
+        return "flagged: " + ", ".join(f"{k} {v}" for k, v in bad.items())
     if not cond <= AUTO_MAX_COND:
         return f"ill-conditioned (cond {cond:.2g})"
     if not dev <= AUTO_MAX_PROFILE_DEV:
