@@ -4,8 +4,8 @@ One file per slide, ``<Fabric>_F<pressure>_V<speed>mmps_<rep>.csv`` (e.g.
 ``Linen_F180_V-10mmps_0.csv``), header ``timestamp, proximity1, proximity2,
 channel1, ..., channel16``: integer milliseconds since the logger started, two
 "proximity" words and 16 baseline-subtracted taxel readings (counts). Each slide
-is a quarter-sine ramp over 47.1 mm of travel, 500 mm at constant ``|speed|`` and a
-ramp down of the same length, with logging over exactly the motion.
+is a quarter-sine velocity ramp lasting 47.1 mm / ``|speed|`` (30 mm of travel), 500 mm
+at constant ``|speed|`` and a ramp down of the same length, logged over exactly the motion.
 
 Every recording has the 16 taxels as channels ``channel1..channel16`` followed by
 ``proximity1``, ``proximity2`` (all unit ``"counts"``); texture feature sets use
@@ -29,15 +29,16 @@ from frictionfit._types import PathType
 from frictionfit.errors import DatasetError, RecordingError
 from frictionfit.recording import Channel, Problem, Recording
 
-__all__ = ["PROXIMITY", "RAMP_TRAVEL_MM", "TAXELS", "load", "parse_name", "read_slide"]
+__all__ = ["PROXIMITY", "RAMP_SPEED_TIME_MM", "TAXELS", "load", "parse_name", "read_slide"]
 
 #: Taxel channel names, in file order.
 TAXELS: tuple[str, ...] = tuple(f"channel{i}" for i in range(1, 17))
 #: The two extra words the finger sends; kept, never used as texture.
 PROXIMITY: tuple[str, ...] = ("proximity1", "proximity2")
 COLUMNS: tuple[str, ...] = ("timestamp", *PROXIMITY, *TAXELS)
-#: Travel (mm) covered by each quarter-sine velocity ramp (upstream controller).
-RAMP_TRAVEL_MM = 47.1
+#: Ramp duration times |speed| (mm): each quarter-sine ramp lasts 47.1 mm / |v| (upstream
+#: controller) and covers 2 x 47.1 / pi = 30 mm of travel.
+RAMP_SPEED_TIME_MM = 47.1
 #: Constant-speed travel (mm).
 STEADY_TRAVEL_MM = 500.0
 #: Fewest rows a slide may have (the fastest slides have ~141).
@@ -142,7 +143,7 @@ def read_slide(path: PathType) -> Recording:
     speed = abs(int(meta["speed"]))
     meta.update(
         label=meta["fabric"],
-        ramp_s=RAMP_TRAVEL_MM / speed,
+        ramp_s=RAMP_SPEED_TIME_MM / speed,
         logger_start_ms=float(ts[0]),
         dataset="fabricslide",
     )

@@ -1,7 +1,7 @@
 """Physical features of a FabricSlide slide: the contact model's breakaway and the stick-slip.
 
 **Texture, not mounting.** Every feature is computed from the taxels with each
-taxel's own mean (and linear trend) removed, and amplitudes are relative to a
+taxel's own mean (or linear trend, in the steady part) removed, and amplitudes are relative to a
 taxel's own dynamic range, so a constant offset added to any taxel (a new grasp, a
 new bias reading) changes nothing, and the proximity words are never read.
 
@@ -30,9 +30,9 @@ events per 100 mm, each taxel's amplitude relative to the taxels' geometric mean
 0.25 to 17.5 Hz (a band without a Welch bin takes the nearest bin) minus the log of
 its total power (8 x 16). The grip-loop line (2.0-2.6 Hz; mechanical, its
 frequency does not follow the speed and its strength differs between recording
-runs) is left out of the bands and of the total: with it, the bands partly
-identify the run instead of the fabric (leave-one-pressure-out 0.929 with it,
-0.960 without).
+runs, so it can tell runs apart rather than fabrics) is left out of the bands and of
+the total: leave-one-pressure-out 0.929 with it, 0.960 without (one of four
+variants tried on the same data, so slightly optimistic).
 """
 
 from __future__ import annotations
