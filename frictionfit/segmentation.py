@@ -182,11 +182,11 @@ def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _best(t: np.ndarray, y: np.ndarray, w: np.ndarray, designs: np.ndarray) -> int:
     """Index of the design (G, n, p) whose weighted least-squares fit leaves the least RSS."""
-    xw = designs * w[None, :, None]
-    xtx = np.einsum("gnp,gnq->gpq", xw, designs) + 1e-12 * np.eye(designs.shape[2])
-    xty = np.einsum("gnp,n->gp", xw, y)
+    xwt = np.swapaxes(designs * w[None, :, None], 1, 2)  # (G, p, n)
+    xtx = xwt @ designs + 1e-12 * np.eye(designs.shape[2])
+    xty = xwt @ y  # (G, p)
     beta = np.linalg.solve(xtx, xty[..., None])[..., 0]
-    rss = np.einsum("n,n->", w * y, y) - np.einsum("gp,gp->g", beta, xty)
+    rss = float((w * y) @ y) - np.sum(beta * xty, axis=1)
     return int(np.argmin(rss))
 
 
@@ -239,7 +239,7 @@ def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign:
     win = np.arange(c - int(0.03 * rate), c + int(0.025 * rate))
     tt = (win - win[0]) / rate
     t0s = np.arange(max(c - int(0.01 * rate), a), min(c + int(0.01 * rate), b), _GRID_S * rate)
-    widths = np.arange(0.004, 0.022, 0.001)
+    widths = np.arange(0.004, 0.022, 0.002)
     cand = [(t0, wd) for t0 in t0s for wd in widths]
     t0v = np.array([(c0 - win[0]) / rate for c0, _ in cand])
     wv = np.array([wd for _, wd in cand])
