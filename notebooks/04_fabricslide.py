@@ -52,8 +52,9 @@ print(len(recs), "slides;", meta.groupby("fabric").size().to_dict())
 # scaled by its 5-95 % range — and the fitted `relaxation` member driven by the known
 # travel (quarter-sine ramp, then constant speed). This is how
 # `SlidingPhysicalFeatures` builds its breakaway features (there, block-averaged to 128
-# points); the stick-slip period it reports from the steady part's spectrum is marked
-# by the ticks.
+# points, with its own data-driven start: these fits use `fit_trials`' default start, so
+# they can differ); the stick-slip period it reports from the steady part's spectrum is
+# marked by the ticks.
 
 # %%
 def pc1(x: np.ndarray) -> np.ndarray:
@@ -109,7 +110,8 @@ fig.tight_layout()
 # ## The fabrics in the physical feature space
 # `SlidingPhysicalFeatures` on every slide: texture statistics only (each taxel's own mean
 # removed, amplitudes relative to its own range, proximity words never read). Two of its
-# quantities against each other, one point per slide.
+# quantities against each other, one point per slide: in these two the fabrics overlap
+# strongly; the classifiers below use all 158 (mostly per-taxel spectral shape).
 
 # %%
 phys = SlidingPhysicalFeatures()
