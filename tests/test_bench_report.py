@@ -120,3 +120,11 @@ def test_non_finite_summary_values_are_null(tmp_path, bad):
     bench = merge([_stage("fit", [("lm", 0.01, 0.1, "e")], trials_per_s=bad)])
     data = json.loads(write_report(bench, tmp_path)["json"].read_text())
     assert data["summary"]["trials_per_s"] is None
+
+
+def test_report_renders_again_from_its_json(tmp_path):
+    stage = _stage("uncertainty", [("laplace", 0.01, 1.0, "mean |q - ref|"),
+                                   ("reference", float("nan"), 0.0, "itself")])
+    data = json.loads(write_report(merge([stage]), tmp_path / "a")["json"].read_text())
+    paths = write_report(data, tmp_path / "b")  # NaN came back as null
+    assert r"| laplace | 0.01 | mean \|q - ref\| | 1 | **yes** |" in paths["markdown"].read_text()

@@ -29,9 +29,12 @@ KNOWN_BUGS: dict[str, str] = {
 _OVERFLOW = ("Param.to_physical computes 1/(1+exp(-u)) in NumPy: for the quantiles "
              "mode +- z*sd of an unidentifiable parameter (|u| > 709) it warns 'overflow "
              "encountered in exp' (an error under the test settings) out of sample_posterior")
+#: Without the warning, these two still fail: Laplace at a fit that ended MAX_STEPS or
+#: ILL_CONDITIONED says converged=True, with an interval > 4 sd from the truth.
+_UNCONVERGED_FIT = " (and then: Laplace of a not-converged fit says converged, misses truth)"
 KNOWN_LAPLACE_BUGS: dict[str, str] = {
-    **KNOWN_BUGS, **dict.fromkeys(
-        ("near_zero_friction", "missing_30pct", "pure_noise", "extreme_start"), _OVERFLOW)}
+    **KNOWN_BUGS, **dict.fromkeys(("missing_30pct", "extreme_start"), _OVERFLOW),
+    **dict.fromkeys(("near_zero_friction", "pure_noise"), _OVERFLOW + _UNCONVERGED_FIT)}
 #: Fitted on its own: its warning would otherwise send the whole batch case by case.
 ALONE = ("dead_channel",)
 

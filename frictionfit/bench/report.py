@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -25,6 +26,11 @@ import numpy as np
 from frictionfit.bench._timing import machine_info
 
 __all__ = ["merge", "pareto_front", "to_markdown", "write_report"]
+
+
+def _num(value) -> float:
+    """A float; None (a non-finite number after a JSON round trip) is NaN."""
+    return np.nan if value is None else float(value)
 
 
 def _higher_is_better(point: Mapping) -> bool:
@@ -43,8 +49,8 @@ def pareto_front(points: Sequence[Mapping]) -> list[bool]:
     ...               {"seconds_per_trial": 3.0, "error": 0.05}])
     [True, False, True]
     """
-    xy = np.array([[float(p["seconds_per_trial"]),
-                    -float(p["error"]) if _higher_is_better(p) else float(p["error"])]
+    xy = np.array([[_num(p["seconds_per_trial"]),
+                    -_num(p["error"]) if _higher_is_better(p) else _num(p["error"])]
                    for p in points], dtype=np.float64).reshape(-1, 2)
     finite = np.all(np.isfinite(xy), axis=1)
     front = []
@@ -110,7 +116,7 @@ def _fmt(value) -> str:
         return str(int(value))
     if isinstance(value, (float, np.floating)):
         return f"{value:.4g}"
-    return str(value)
+    return str(value).replace("|", "\\|")  # a bare pipe would split the table cell
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
@@ -134,7 +140,8 @@ def to_markdown(bench: Mapping) -> str:
         if "error" in stage:
             lines += [f"Stage failed: {stage['error']}", ""]
             continue
-        points = sorted(stage.get("points", []), key=lambda p: p["seconds_per_trial"])
+        points = sorted(stage.get("points", []),
+                        key=lambda p: np.nan_to_num(_num(p["seconds_per_trial"]), nan=np.inf))
         lines += _table(["configuration", "s / trial", "error", "value", "Pareto"],
                         [[p["config"], p["seconds_per_trial"], p["error_name"], p["error"],
                           "**yes**" if p.get("pareto") else ""] for p in points])
@@ -177,8 +184,8 @@ def plot_speed_vs_error(bench: Mapping, path: Path) -> None:
                              squeeze=False)
     for ax, (name, stage) in zip(axes[0], stages, strict=False):
         pts = stage["points"]
-        x = np.array([p["seconds_per_trial"] for p in pts], dtype=np.float64)
-        y = np.array([p["error"] for p in pts], dtype=np.float64)
+        x = np.array([_num(p["seconds_per_trial"]) for p in pts])
+        y = np.array([_num(p["error"]) for p in pts])
         front = np.array(pareto_front(pts))
         ax.scatter(x[~front], y[~front], c="0.6", s=25, label="configuration")
         order = np.argsort(x[front])
@@ -188,7 +195,7 @@ def plot_speed_vs_error(bench: Mapping, path: Path) -> None:
                         textcoords="offset points")
         ax.set_xscale("log")
         ax.set_xlabel("time per trial (s)")
-        ax.set_ylabel(pts[0]["error_name"])
+        ax.set_ylabel(textwrap.fill(str(pts[0]["error_name"]), 38), fontsize=8)
         ax.set_title(name)
         ax.legend(fontsize=7)
     if not stages:

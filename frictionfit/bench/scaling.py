@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import os
 import resource
 import sys
 
@@ -104,6 +105,7 @@ def dask_speedup(n_trials: int = 256, repeats: int = 3, seed: int = 0, scheduler
     local_s, dask_s = timing["local"]["median_s"], timing["dask"]["median_s"]
     return {"stage": "dask", "summary": {
         "trials": n_trials, "local_s": local_s, "dask_s": dask_s, "workers": workers or 2,
+        "load_average": os.getloadavg()[0],
         "dask_speedup_2_workers": local_s / dask_s,
         "times_s": {k: v["times_s"] for k, v in timing.items()}}}
 
@@ -122,5 +124,6 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
             "summary": {"scaling": [{"trials": p["trials"], "seconds": p["seconds"]}
                                     for p in points],
                         "scaling_exponent": exponent(points),
-                        "peak_rss_mb": max(p["max_rss_mb"] for p in points)},
+                        "peak_rss_mb": max(p["max_rss_mb"] for p in points),
+                        "scaling_load_average": os.getloadavg()[0]},
             "machine": machine_info()}
