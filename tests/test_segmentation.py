@@ -7,7 +7,7 @@ import pytest
 
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Event, Recording
-from frictionfit.segmentation import moving_average, regrid, segment
+from frictionfit.segmentation import moving_average, regrid, segment, suspect_samples
 
 
 def _measurement(n_motions=3, rate=1000.0):
@@ -133,3 +133,12 @@ def test_spikes_and_stuck_values_are_masked_and_reported(simulated):
     assert kept[1].samples[500, 1] == samples[2500, 1] and kept[1].problems == one.problems
     faulty = {f["motion"] for f in rec.truth["faults"]}  # here NaN bursts and spikes
     assert all(bool(m.problems) == (m.index in faulty) for m in segment(rec))
+
+
+def test_noise_free_plateaus_are_not_called_stuck():
+    x = np.repeat([0.0, 1.0, 0.5, 0.2], 50)[:, None] * [1.0, -1.0]  # exact repeats everywhere
+    spike, stuck = suspect_samples(x)
+    assert not stuck.any() and not spike.any()
+    noisy = np.random.default_rng(0).normal(0, 0.003, (400, 2))
+    noisy[100:130] = noisy[99]
+    assert suspect_samples(noisy)[1].sum() == 30
