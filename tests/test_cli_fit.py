@@ -31,9 +31,3 @@ def test_fit_with_nothing_to_fit_exits_2(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(tmp_path)])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output
 
-
-def test_demo_runs_and_compares_with_truth(tmp_path):
-    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "d")])
-    assert result.exit_code == 0, result.output
-    assert "[[Variables]]" in result.output and "truth(motion1)" in result.output
-    assert len(pd.read_csv(tmp_path / "d" / "fits.csv")) == 4
