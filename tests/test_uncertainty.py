@@ -50,21 +50,25 @@ def test_a_short_chain_is_flagged_not_converged_and_still_reported(both):
 
 
 @pytest.mark.slow
-def test_laplace_and_emcee_agree_on_a_near_gaussian_posterior(fitted):
+def test_laplace_and_emcee_agree_where_gaussian_and_differ_on_skewed_stiffness(fitted):
     ts, y, fit = fitted
     args = (fit, y, ts.t, (ts.t_out, ts.t_back))
     lap = sample_posterior(*args, method="laplace")
-    mc = sample_posterior(*args, method="emcee", seed=5, max_steps=6000)
+    mc = sample_posterior(*args, method="emcee", seed=5, max_steps=8000)
     assert mc.converged[:2].all(), mc.reason
     for i in range(2):
         chain = mc.chains[i]
         assert chain.n_steps >= 50 * chain.tau.max() and chain.acceptance >= 0.1
-        for name, q in lap.quantiles[i].items():
+        # offset and f_kin are Gaussian here (their profile drops match 2.0 to 0.03):
+        # medians within 0.3 posterior sd (MC error ~0.05 sd at ESS > 400), sds within 20 %.
+        for name in ("offset", "f_kin"):
             sd = mc.sd[i][name]
-            # Twin check: medians within 0.3 posterior sd (MC error ~0.05 sd at ESS > 400),
-            # sds within 30 % (a mild skew in the log-scale parameters is allowed).
-            assert abs(q[2] - mc.quantiles[i][name][2]) < 0.3 * sd, (i, name)
-            assert lap.sd[i][name] == pytest.approx(sd, rel=0.3), (i, name)
+            assert abs(lap.quantiles[i][name][2] - mc.quantiles[i][name][2]) < 0.3 * sd
+            assert lap.sd[i][name] == pytest.approx(sd, rel=0.2), (i, name)
+        # k is not: lower stiffness is excluded sharply (profile drop 67-92 at -2 sd,
+        # 0.8-1.9 at +2 sd), so the posterior is skewed towards stiff contacts.
+        q = mc.quantiles[i]["k"]
+        assert q[4] - q[2] > 1.5 * (q[2] - q[0]), q
 
 
 def test_a_trial_whose_fit_failed_is_skipped_and_named(both):
@@ -126,8 +130,11 @@ def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
     from frictionfit.recording import Event, Recording, write_recording
 
     ts = simulate_trials(MODEL, 1, seed=4, snr_db=30, params=IDENTIFIED)
-    events = [Event(ts.t_out, "move", "p2"), Event(ts.t_back, "move", "p1")]
-    write_recording(Recording.from_arrays(ts.y.T, 1000.0, ["index_x"], events=events),
+    # Two 2-s motions: segmentation drops the first (preparatory) one.
+    events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
+              for k in range(2) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
+    samples = np.concatenate([ts.y.T, ts.y.T])
+    write_recording(Recording.from_arrays(samples, 1000.0, ["index_x"], events=events),
                     tmp_path / "m1")
     out = tmp_path / "fits.csv"
     runner = CliRunner()

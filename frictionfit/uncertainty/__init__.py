@@ -176,6 +176,8 @@ def sample_posterior(
     >>> post.method
     ['laplace', 'laplace']
     """
+    if getattr(fit, "drive", "events") != "events":
+        raise FitError(f"sample_posterior needs a fit with drive='events', not {fit.drive!r}")
     if method not in METHODS:
         raise FitError(f"unknown uncertainty method {method!r}; choose from {METHODS}")
     if noise not in ("ar1", "white"):
@@ -196,16 +198,19 @@ def sample_posterior(
                quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
                acceptance=np.full(n, np.nan), chains=[None] * n)
     for name in dict.fromkeys(fit.model):
-        model = get_model(name)
+        model = get_model(name, stroke_mm=getattr(fit, "stroke_mm", 1.0))
         nan = {p: np.nan for p in model.param_names}
         rows = np.array([i for i in range(n) if fit.model[i] == name])
         for i in rows:
             out["quantiles"][i] = {p: np.full(len(QUANTILES), np.nan) for p in nan}
             out["sd"][i], out["tau"][i], out["ess"][i] = dict(nan), dict(nan), dict(nan)
+        held = [i for i in rows if {"fixed", "tied"} & set(fit.flags[i].values())]
         ok = np.array([fit.status[i] not in _SKIP and np.all(np.isfinite(fit.u[i]))
-                       for i in rows], dtype=bool)
+                       and i not in held for i in rows], dtype=bool)
         for i in rows[~ok]:
-            out["reason"][i] = f"skipped: fit status {Status(int(fit.status[i])).name.lower()}"
+            out["reason"][i] = ("skipped: fixed or tied parameters are not sampled yet"
+                                if i in held else
+                                f"skipped: fit status {Status(int(fit.status[i])).name.lower()}")
         rows = rows[ok]
         if not rows.size:
             continue
