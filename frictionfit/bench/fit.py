@@ -26,7 +26,7 @@ from frictionfit.fit import fit_trials, initial_guess
 from frictionfit.models import FAMILY, ContactModel, get_model
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
-__all__ = ["IDENTIFIABLE", "numpy_predict", "run"]
+__all__ = ["IDENTIFIABLE", "measure", "numpy_predict", "run"]
 
 #: Parameters a 2-s, 20 dB trial identifies (the others trade off with each other).
 IDENTIFIABLE = ("offset", "f_kin", "f_static_excess", "relax_frac", "tau", "delay",
@@ -170,8 +170,15 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     per peer, without the grid. Timings are medians of interleaved repetitions;
     ``compile_s`` is the first call of ours minus a steady one.
     """
-    name, n, n_peer, pool, reps = (("elastic_plastic", 4, 1, 4, 1) if quick
-                                   else (DEFAULT_MODEL, 256, 8, 128, 2))
+    if quick:
+        return measure("elastic_plastic", 4, 1, 4, 1, grid=False, seed=seed)
+    return measure(DEFAULT_MODEL, 256, 8, 128, 2, grid=True, seed=seed)
+
+
+def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,
+            seed: int = 0) -> dict:
+    """:func:`run` at a chosen size: ``n`` trials of ``name`` (pools of ``pool``),
+    ``n_peer`` per peer, ``reps`` interleaved repetitions, the config grid or not."""
     ts = simulate_trials(name, n, seed=seed)
     model = get_model(name)
     times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
@@ -193,7 +200,7 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     oks = {k: runs[k]["result"][1] for k in runs}
     points = [_point(f"{k} {name} float64", runs[k]["median_s"], sizes[k], model,
                      runs[k]["result"], sets[k]) for k in runs]
-    if not quick:
+    if grid:
         points += _configs(seed, pool)
     summary = {
         "model": name, "n_trials": n, "n_trials_peers": n_peer,
