@@ -73,7 +73,7 @@ def make_classifier(name: str = "svm-ovo", *, seed: int = 0):
         return SVC(C=10.0, gamma="scale", random_state=seed, **kw)
 
     if name == "svm-ovo":
-        return svc(kernel="rbf", decision_function_shape="ovo")
+        return svc(kernel="rbf")  # libsvm trains one-vs-one; votes give the class
     if name == "svm-ova":
         return OneVsRestClassifier(svc(kernel="rbf"))
     if name == "svm-poly":
