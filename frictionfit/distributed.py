@@ -1,14 +1,17 @@
-"""The batched fit on a Dask cluster: trials partitioned across workers, results unchanged.
+"""The batched fit and uncertainty on a Dask cluster: trials partitioned across workers.
 
 For users who outgrow one machine. The trials of a batch are cut into contiguous
 chunks, one or more per worker thread; every chunk runs the ordinary
 :func:`frictionfit.fit.fit_trials` on a worker (itself batched and vmapped), and
-the per-chunk results are concatenated back in trial order. A trial's result
-does not depend on which chunk it lands in, so the distributed fit returns the
-same numbers as the local one, up to rounding (a different batch shape can
-change XLA's vectorisation in the last bit); the one exception is ``n_starts > 1``, whose
-extra starting points are jittered per batch, so a chunk draws other (equally
-distributed) jitters than the whole batch would.
+the per-chunk results are concatenated back in trial order;
+:func:`posterior_distributed` does the same for
+:func:`frictionfit.uncertainty.sample_posterior`.
+
+A trial's result does not depend on the chunk it lands in, so the fit and the
+Laplace posterior equal the local ones up to rounding (a different batch shape
+can change XLA's vectorisation in the last bit). Two exceptions draw random
+numbers per batch, so a chunk gets other, equally distributed draws: the jittered
+starts of ``n_starts > 1`` and emcee's walkers.
 
 ``scheduler`` is a ``distributed.Client`` or a scheduler address
 (``"tcp://host:8786"``); a client made from an address is closed afterwards.
@@ -27,7 +30,8 @@ import pandas as pd
 from frictionfit.errors import FitError
 from frictionfit.fit import FitResult, fit_trials
 
-__all__ = ["concat_results", "fit_distributed", "map_chunks", "partition", "take_trials"]
+__all__ = ["concat_results", "fit_distributed", "map_chunks", "partition", "posterior_distributed",
+           "take_trials"]
 
 
 def partition(n_trials: int, n_chunks: int, groups=None) -> list[slice]:
@@ -122,20 +126,21 @@ def _concat(values: list, name: str):
         return tuple(_concat(list(items), name) for items in zip(*values, strict=True))
     if all(v == first for v in values):  # None, solver name, stroke, ...
         return first
-    raise FitError(f"chunks disagree on the per-batch FitResult field {name!r}: {values}")
+    raise FitError(f"chunks disagree on the per-batch result field {name!r}: {values}")
 
 
-def concat_results(parts: Sequence[FitResult], wall_s: float | None = None) -> FitResult:
-    """One :class:`FitResult` from per-chunk results, rows in the order given.
+def concat_results(parts: Sequence, wall_s: float | None = None):
+    """One result from per-chunk results (``FitResult`` or ``Posterior``), rows in order.
 
     Per-trial fields (arrays, lists, tables) are concatenated and per-batch
     settings (solver, drive, ...) carried over; ``wall_s`` is the given wall time
     of the whole call (s), or the sum over the chunks.
     """
+    cls = type(parts[0])
     merged = {f.name: _concat([getattr(p, f.name) for p in parts], f.name)
-              for f in dataclasses.fields(FitResult) if f.init and f.name != "wall_s"}
+              for f in dataclasses.fields(cls) if f.init and f.name != "wall_s"}
     merged["wall_s"] = sum(p.wall_s for p in parts) if wall_s is None else wall_s
-    return FitResult(**merged)
+    return cls(**merged)
 
 
 def _take(value, rows: np.ndarray, n_trials: int):
@@ -229,4 +234,49 @@ def fit_distributed(
         u0=None if u0 is None else np.asarray(u0, dtype=np.float64).reshape(n, -1))
     shared = {"t": np.asarray(t, dtype=np.float64), "drive": drive, "fit_kwargs": fit_kwargs}
     parts = map_chunks(_fit_chunk, per_trial, shared, scheduler=scheduler, n_chunks=n_chunks)
+    return concat_results(parts, wall_s=time.perf_counter() - start)
+
+
+def _posterior_chunk(index, y, t_out, t_back, *, fit, t, seed, kwargs):
+    from frictionfit.uncertainty import sample_posterior
+
+    return sample_posterior(take_trials(fit, index), y, t, (t_out, t_back),
+                            seed=seed + int(index[0]), **kwargs)
+
+
+def posterior_distributed(fit: FitResult, y, t, drive_input, *, scheduler,
+                          n_chunks: int | None = None, seed: int = 0, **kwargs):
+    """:func:`frictionfit.uncertainty.sample_posterior` with the trials spread over Dask.
+
+    Parameters
+    ----------
+    fit, y, t, drive_input, seed
+        As for ``sample_posterior`` (force in N, times in s); chunk ``c`` starting at
+        trial ``i`` samples with ``seed + i``.
+    scheduler : distributed.Client or str
+        A connected client, or the scheduler's address.
+    n_chunks : int, optional
+        Tasks; default, the cluster's total worker threads.
+    **kwargs
+        Passed to ``sample_posterior`` (``method``, ``nwalkers``, ``max_steps``, ...);
+        ``chains_path`` is refused (one HDF5 file cannot take writes from many workers).
+
+    Returns
+    -------
+    Posterior
+        One entry per trial, in input order. Laplace results equal the local ones
+        up to rounding; emcee draws are seeded per chunk, so they are other draws
+        from the same posterior.
+    """
+    if kwargs.get("chains_path") is not None:
+        raise FitError("chains_path is not supported on Dask: save chains per chunk locally")
+    start = time.perf_counter()
+    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+    n = y.shape[0]
+    t_out, t_back = drive_input
+    per_trial = {"index": np.arange(n), "y": y, "t_out": _per_trial(t_out, n),
+                 "t_back": _per_trial(t_back, n)}
+    shared = {"fit": fit, "t": np.asarray(t, dtype=np.float64), "seed": seed, "kwargs": kwargs}
+    parts = map_chunks(_posterior_chunk, per_trial, shared, scheduler=scheduler,
+                       n_chunks=n_chunks)
     return concat_results(parts, wall_s=time.perf_counter() - start)
