@@ -160,7 +160,7 @@ def to_markdown(bench: Mapping) -> str:
     if "dask" in bench:
         d = bench["dask"]["summary"]
         lines += ["## Dask", "", f"{d['trials']} trials: one process {d['local_s']:.3g} s, "
-                  f"local cluster of 2 workers {d['dask_s']:.3g} s: speed-up "
+                  f"Dask cluster of {d['workers']} workers {d['dask_s']:.3g} s: speed-up "
                   f"{d['dask_speedup_2_workers']:.3g}x.", ""]
     if "hard_cases" in bench:
         lines += ["## Hard cases", ""]
