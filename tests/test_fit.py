@@ -77,7 +77,7 @@ def test_non_finite_jacobian_is_a_status_not_a_crash():
 
 @pytest.mark.slow
 def test_auto_selection_picks_the_generating_member():
-    # Measured on 32 trials at 20 dB: 30/32 elastic_plastic trials chose elastic_plastic.
+    # Measured on 32 trials at 20 dB (seed 5): 29/32 elastic_plastic trials chose it.
     # 8 trials here; 6/8 keeps the check meaningful without being a coin flip.
     ts = simulate_trials("elastic_plastic", 8, seed=5)
     res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model="auto", chunk_size=8)

@@ -245,6 +245,14 @@ def fit_trials(
             fit = refit
         fits[member.name] = fit
         previous = (member, fit["u"])
+    if model == "auto" and not tie:
+        # Backward pass: a smaller member also starts from the bigger one's optimum
+        # (extra effects dropped), so a smaller member stuck in a poor local minimum
+        # is not out-scored by a bigger one that found the right basin.
+        for small, big in reversed(list(zip(members[:-1], members[1:], strict=True))):
+            back = _warm_start(small, fits[small.name]["u"], (big, fits[big.name]["u"]))
+            fits[small.name] = _fit_member(small, mask, data, fits[small.name]["u"], fix,
+                                           opts, back)
     bic = pd.DataFrame({n: fits[n]["bic"] for n in names})
     chosen = choose(bic)
     rows = [fits[name] for name in chosen]
