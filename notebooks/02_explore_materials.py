@@ -38,7 +38,8 @@ recs = simulate_measurements(specs, seed=SEED)
 print(len(recs), "measurements,", len(CLASSES), "classes, e.g.", recs[0].name)
 
 # %%
-feats = PhysicalFeatures(measured=True, with_stderr=True, channels=("index_x",), cache=False)
+feats = PhysicalFeatures(fitted=True, measured=True, with_stderr=True, channels=("index_x",),
+                         cache=False)
 X = feats.fit_transform(recs)
 cols = [c.removeprefix("index_x:").removeprefix("fit_").split(" ")[0]
         for c in feats.get_feature_names_out()]
