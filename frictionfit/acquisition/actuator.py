@@ -100,7 +100,7 @@ class DynamixelActuator(Actuator):
     """
 
     def __init__(self, url: str, servo_id: int = 1, *, baudrate: int = 57_600,
-                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.1) -> None:
+                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5) -> None:
         self.url, self.servo_id, self.limits, self.timeout_s = url, servo_id, limits, timeout_s
         try:
             self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.005)
