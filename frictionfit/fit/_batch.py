@@ -259,7 +259,10 @@ def fit_trials(
     with np.errstate(over="ignore", invalid="ignore"):
         total_ss = np.array([np.sum((yi[m] - yi[m].mean()) ** 2) if m.any() else np.nan
                              for yi, m in zip(y, mask, strict=True)])
-        r2 = 1.0 - np.array([r["chi2"][i] for i, r in enumerate(rows)]) / total_ss
+        chi2 = np.array([r["chi2"][i] for i, r in enumerate(rows)])
+        # A constant (dead) channel has no variance to explain: R^2 is undefined (NaN).
+        r2 = 1.0 - np.divide(chi2, total_ss, out=np.full_like(chi2, np.nan),
+                             where=total_ss > 0)
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
             for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
     return FitResult(

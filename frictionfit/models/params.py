@@ -46,7 +46,7 @@ class Param:
             return u
         xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
         lo, hi = self._span(xp)
-        v = lo + (hi - lo) / (1.0 + xp.exp(-u))
+        v = lo + (hi - lo) * 0.5 * (1.0 + xp.tanh(0.5 * u))  # the logistic, without overflow
         if self.transform == "loglogit":  # exp(log(upper)) can overshoot by an ulp
             return xp.clip(xp.exp(v), self.lower, self.upper)
         return v
