@@ -243,11 +243,16 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
         out["reason"][i] = reasons[k] or "laplace ok"
         if not use_emcee[k]:
             out["method"][i] = "laplace"
-            out["converged"][i] = finite[k]
+            # A Gaussian at a point the fit did not converge to is no posterior summary.
+            fit_ok = int(fit.status[i]) == Status.CONVERGED
+            out["converged"][i] = finite[k] and fit_ok
             if finite[k]:
                 out["quantiles"][i], out["sd"][i] = _laplace_summary(model, mode[k], cov[k])
             else:
                 out["reason"][i] = "laplace covariance not finite; use emcee"
+            if not fit_ok:
+                out["reason"][i] = (f"laplace at a fit that ended "
+                                    f"{Status(int(fit.status[i])).name.lower()}; use emcee")
     sel = np.flatnonzero(use_emcee)
     if not sel.size:
         return
