@@ -14,29 +14,14 @@ import pytest
 from frictionfit.bench.hard_cases import CaseFit, fit_cases, judge
 from frictionfit.simulation.hard_cases import CASES, NOISE_SD, hard_cases, truth_unconstrained
 
-#: Cases that expose bugs in code this suite does not own; see the reasons.
+#: Cases that expose open bugs (fit and, through it, its Laplace posterior); see the reasons.
 KNOWN_BUGS: dict[str, str] = {
     "clipped": "fit_trials has no saturation check: the clipped static peak is fitted as a "
                "converged, unflagged f_static_excess ~0.125 N (truth 0.4 N)",
     "one_sample_phase": "a 1-sample out phase leaves the initial guess at a local minimum "
                         "(f_kin ~0.008 N, truth 0.8 N; contact never slips) reported "
                         "converged with f_kin unflagged",
-    "dead_channel": "fit_trials computes R^2 = 1 - chi2/total_ss with total_ss = 0 for a "
-                    "constant channel: the RuntimeWarning (an error under the test "
-                    "settings) escapes the batch",
 }
-#: Cases whose Laplace posterior exposes bugs in code this suite does not own.
-_OVERFLOW = ("Param.to_physical computes 1/(1+exp(-u)) in NumPy: for the quantiles "
-             "mode +- z*sd of an unidentifiable parameter (|u| > 709) it warns 'overflow "
-             "encountered in exp' (an error under the test settings) out of sample_posterior")
-#: Without the warning, these two still fail: Laplace at a fit that ended MAX_STEPS or
-#: ILL_CONDITIONED says converged=True, with an interval > 4 sd from the truth.
-_UNCONVERGED_FIT = " (and then: Laplace of a not-converged fit says converged, misses truth)"
-KNOWN_LAPLACE_BUGS: dict[str, str] = {
-    **KNOWN_BUGS, **dict.fromkeys(("missing_30pct", "extreme_start"), _OVERFLOW),
-    **dict.fromkeys(("near_zero_friction", "pure_noise"), _OVERFLOW + _UNCONVERGED_FIT)}
-#: Fitted on its own: its warning would otherwise send the whole batch case by case.
-ALONE = ("dead_channel",)
 
 
 @pytest.fixture(scope="module")
@@ -46,8 +31,7 @@ def gallery():
 
 @pytest.fixture(scope="module")
 def results(gallery):
-    together = fit_cases({n: c for n, c in gallery.items() if n not in ALONE})
-    return {**together, **fit_cases({n: gallery[n] for n in ALONE})}
+    return fit_cases(gallery)
 
 
 def _cases(bugs):
@@ -62,7 +46,7 @@ def test_fit_ends_right_or_flagged(name, gallery, results):
     assert not failed, failed
 
 
-@pytest.mark.parametrize("name", _cases(KNOWN_LAPLACE_BUGS))
+@pytest.mark.parametrize("name", _cases(KNOWN_BUGS))
 def test_laplace_ends_right_or_flagged(name, gallery, results):
     outcomes = judge(gallery[name], results[name])
     assert all(o.laplace != "not_run" for o in outcomes)
