@@ -1,4 +1,4 @@
-"""``frictionfit fit`` options owned by the fitting work: --plot, --fix, --tie, bad --fix."""
+"""``frictionfit fit`` end to end: a row per motion x channel, bad files named, options."""
 
 import numpy as np
 import pandas as pd
@@ -36,3 +36,21 @@ def test_bad_fix_is_named(tmp_path):
     _measurement(tmp_path)
     result = CliRunner().invoke(app, ["fit", str(tmp_path / "m1.csv"), "--fix", "tau"])
     assert result.exit_code == 2 and "write NAME=VALUE" in result.output
+
+
+def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
+    _measurement(tmp_path)
+    (tmp_path / "broken.csv").write_text("t,x\n0,1\n")  # no sidecar: skipped, named
+    out = tmp_path / "fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "broken.json: sidecar file is missing" in result.output
+    frame = pd.read_csv(out)
+    assert list(frame["trial"]) == ["m1/motion1/index_x", "m1/motion1/thumb_x"]
+    assert {"k [N/mm]", "status"} <= set(frame.columns)
+
+
+def test_fit_with_nothing_to_fit_exits_2(tmp_path):
+    result = CliRunner().invoke(app, ["fit", str(tmp_path)])
+    assert result.exit_code == 2 and "no motion could be segmented" in result.output
