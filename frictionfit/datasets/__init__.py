@@ -27,10 +27,22 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def shared_dir() -> Path | None:
-    """The team's ``shared/`` folder: ``$FRICTIONFIT_SHARED``, else ``../shared`` by the repo."""
+    """The team's ``shared/`` folder, or None where it cannot be found.
+
+    ``$FRICTIONFIT_SHARED`` if set; else ``shared/`` beside the source checkout this
+    package runs from; else the first ``shared/`` (holding ``datasets/``) beside the
+    current folder or one of its parents — so an installed (non-editable) package run
+    from inside the repository, or from its ``notebooks/``, still finds ``../shared``.
+    """
     env = os.environ.get("FRICTIONFIT_SHARED")
-    candidate = Path(env) if env else REPO_ROOT.parent / "shared"
-    return candidate if candidate.is_dir() else None
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    cwd = Path.cwd().resolve()
+    for folder in (REPO_ROOT, cwd, *cwd.parents):
+        candidate = folder.parent / "shared" if folder == REPO_ROOT else folder / "shared"
+        if (candidate / "datasets").is_dir():
+            return candidate
+    return None
 
 
 def shared_dataset(name: str) -> Path:
@@ -38,8 +50,8 @@ def shared_dataset(name: str) -> Path:
     root = shared_dir()
     if root is None:
         raise DatasetError(
-            f"shared datasets not found: expected {REPO_ROOT.parent / 'shared'} "
-            "(or set FRICTIONFIT_SHARED)"
+            "shared datasets not found: expected a 'shared/datasets' folder beside the "
+            "repository (run from inside it) or FRICTIONFIT_SHARED set to the shared folder"
         )
     path = root / "datasets" / name
     if not path.is_dir():
