@@ -128,3 +128,10 @@ def test_report_renders_again_from_its_json(tmp_path):
     data = json.loads(write_report(merge([stage]), tmp_path / "a")["json"].read_text())
     paths = write_report(data, tmp_path / "b")  # NaN came back as null
     assert r"| laplace | 0.01 | mean \|q - ref\| | 1 | **yes** |" in paths["markdown"].read_text()
+
+
+def test_one_minus_accuracy_is_an_error_to_minimise():
+    # Regression: "1 - accuracy" once matched "accuracy" and was maximised.
+    points = [{"seconds_per_trial": 1.0, "error": 0.05, "error_name": "1 - accuracy"},
+              {"seconds_per_trial": 1.0, "error": 0.30, "error_name": "1 - accuracy"}]
+    assert pareto_front(points) == [True, False]

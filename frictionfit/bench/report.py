@@ -6,10 +6,10 @@ A *stage dict* is what each ``frictionfit.bench.<stage>.run`` returns::
      "points": [{"config": str, "seconds_per_trial": float, "error": float,
                  "error_name": str, ...}, ...]}
 
-Errors are smaller-is-better, except where ``error_name`` contains "accuracy" or
-a point says ``"higher_is_better": true``. The report marks, per stage, the
-Pareto front of time per trial against error: the configurations that no other
-configuration beats on both at once.
+Errors are smaller-is-better, except where ``error_name`` is exactly "accuracy" or
+a point says ``"higher_is_better": true`` ("1 - accuracy" is an ordinary error).
+The report marks, per stage, the Pareto front of time per trial against error:
+the configurations that no other configuration beats on both at once.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def _num(value) -> float:
 
 
 def _higher_is_better(point: Mapping) -> bool:
-    return bool(point.get("higher_is_better", "accuracy" in str(point.get("error_name", ""))))
+    name = str(point.get("error_name", "")).strip().lower()
+    return bool(point.get("higher_is_better", name == "accuracy"))
 
 
 def pareto_front(points: Sequence[Mapping]) -> list[bool]:
