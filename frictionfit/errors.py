@@ -66,6 +66,7 @@ class Status(enum.IntEnum):
     ILL_CONDITIONED = 3
     INSUFFICIENT_DATA = 4
     NOT_CONVERGED = 5
+    SATURATED = 6
 
     @property
     def message(self) -> str:
@@ -92,5 +93,11 @@ _STATUS_MESSAGES = {
     Status.NOT_CONVERGED: (
         "The sampler did not converge (chain shorter than 50 autocorrelation times); "
         "run longer (`max_steps`) or use the Laplace path."
+    ),
+    Status.SATURATED: (
+        "The channel is saturated (clipped) or stuck: a run of samples sits exactly at its "
+        "extreme value. Those samples were left out of the fit, but the force beyond the "
+        "clip is unknown, so the peak parameters (f_static_excess) are not determined; "
+        "re-record with a larger sensor range or amplifier headroom."
     ),
 }

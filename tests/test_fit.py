@@ -75,12 +75,78 @@ def test_non_finite_jacobian_is_a_status_not_a_crash():
     assert np.isfinite(stats["chi2"][1])
 
 
+def test_ar1_deviance_is_unit_free_and_whitens_correlated_residuals():
+    from frictionfit.fit._stats import ar1_deviance
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    e = rng.standard_normal((2, n))
+    r = e.copy()
+    for i in range(1, n):  # trial 1: AR(1) with rho = 0.7, unit marginal variance
+        r[1, i] = 0.7 * r[1, i - 1] + np.sqrt(1 - 0.49) * e[1, i]
+    mask = np.ones_like(r, dtype=bool)
+    dev = ar1_deviance(r, mask)
+    # Rescaling the force (N -> mN) shifts every member's deviance alike: BIC
+    # differences do not depend on units (the former n_eff * log(chi2/n) did).
+    assert np.allclose(ar1_deviance(1e3 * r, mask) - dev, n * np.log(1e6))
+    white = n * np.log(np.mean(r**2, axis=1))
+    assert abs(dev[0] - white[0]) < 5.0  # white residuals: the ordinary deviance
+    # coloured: the likelihood gain of whitening is about -n log(1 - rho^2) = 0.67 n
+    assert 0.6 * n < white[1] - dev[1] < 0.75 * n
+    gappy = mask.copy()
+    gappy[:, 1000:1100] = False  # a gap restarts the recurrence; no NaN, no crash
+    assert np.all(np.isfinite(ar1_deviance(np.where(gappy, r, 0.0), gappy)))
+
+
+def test_multi_start_jitter_is_per_trial_not_per_batch():
+    from frictionfit.fit._guess import multi_starts, trial_keys
+    from frictionfit.models import get_model
+
+    ts = simulate_trials("elastic_plastic", 3, seed=8)
+    model = get_model("elastic_plastic")
+    u0 = np.zeros((3, model.n_params))
+    keys = trial_keys(ts.y)
+    all3 = multi_starts(model, u0, 4, seed=1, keys=keys)
+    last_alone = multi_starts(model, u0[2:], 4, seed=1, keys=keys[2:])
+    assert np.array_equal(all3[:, 2], last_alone[:, 0])
+    assert not np.array_equal(all3[1:, 0], all3[1:, 1])
+    assert np.array_equal(trial_keys(ts.y[[2, 0]]), keys[[2, 0]])
+    # End to end: the same trial with other batch mates gives the same optimum, up to
+    # the last bits XLA's lanes may round differently in another batch shape.
+    kw = dict(model="elastic_plastic", chunk_size=4, n_starts=3, seed=3)
+    a = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), **kw)
+    b = fit_trials(ts.y[[2, 0]], ts.t, (ts.t_out, ts.t_back), **kw)
+    np.testing.assert_allclose(np.stack(b.u), np.stack(a.u)[[2, 0]], rtol=1e-12, atol=1e-12)
+    assert np.array_equal(b.n_steps, a.n_steps[[2, 0]])
+
+
+def test_clipped_channel_is_saturated_not_confident():
+    from frictionfit.fit._guess import SATURATED_RUN, saturated_samples
+
+    ts = simulate_trials("stick_slip", 2, seed=3, snr_db=30.0)
+    y = ts.y.copy()
+    mid = np.median(y[0, :40])  # the offset, before the out command
+    level = 0.8 * np.max(np.abs(y[0] - mid))  # an amplifier clipping at 80% of the peak
+    y[0] = np.clip(y[0], mid - level, mid + level)
+    marked = saturated_samples(y)
+    assert marked[0].sum() >= SATURATED_RUN and not marked[1].any()
+    # quantised noise repeats values, but not in long runs at the extreme
+    rng = np.random.default_rng(0)
+    assert not saturated_samples(np.round(rng.normal(0, 2e-3, (4, 2000)), 3)).any()
+    assert not saturated_samples(np.full((1, 50), 0.7)).any()  # a dead channel: not clipped
+    res = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model="stick_slip", chunk_size=8)
+    assert Status(int(res.status[0])) is Status.SATURATED
+    assert "saturated" in Status.SATURATED.message
+    assert Status(int(res.status[1])) is not Status.SATURATED
+
+
 @pytest.mark.slow
 def test_auto_selection_picks_the_generating_member():
-    # Measured on 32 trials at 20 dB (seed 5): 29/32 elastic_plastic trials chose it.
-    # 8 trials here; 6/8 keeps the check meaningful without being a coin flip.
-    ts = simulate_trials("elastic_plastic", 8, seed=5)
+    # Measured on 32 trials/member at 20 dB with the AR(1) likelihood BIC: 32/32
+    # for each member on the design seed 5, see the commit for fresh seeds.
+    # 8 stick-slip trials here (the member the former rule missed most: 26/32).
+    ts = simulate_trials("stick_slip", 8, seed=5)
     res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model="auto", chunk_size=8)
     assert list(res.bic_table.columns) == ["elastic_plastic", "stick_slip", "relaxation", "rich"]
-    assert sum(m == "elastic_plastic" for m in res.model) >= 6, res.model
+    assert sum(m == "stick_slip" for m in res.model) >= 7, res.model
     assert "[[BIC by model]]" in fit_report(res, 0)

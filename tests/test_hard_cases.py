@@ -14,14 +14,11 @@ import pytest
 from frictionfit.bench.hard_cases import CaseFit, fit_cases, judge
 from frictionfit.simulation.hard_cases import CASES, NOISE_SD, hard_cases, truth_unconstrained
 
-#: Cases that expose open bugs (fit and, through it, its Laplace posterior); see the reasons.
-KNOWN_BUGS: dict[str, str] = {
-    "clipped": "fit_trials has no saturation check: the clipped static peak is fitted as a "
-               "converged, unflagged f_static_excess ~0.125 N (truth 0.4 N)",
-    "one_sample_phase": "a 1-sample out phase leaves the initial guess at a local minimum "
-                        "(f_kin ~0.008 N, truth 0.8 N; contact never slips) reported "
-                        "converged with f_kin unflagged",
-}
+#: Cases that expose open bugs (fit and, through it, its Laplace posterior), with the reason.
+#: Empty: ``clipped`` now ends SATURATED (the run at the extreme is detected and left
+#: out), and ``one_sample_phase`` reaches the global optimum (the guess looks past a
+#: too-short out phase) with f_kin flagged: the contact never slips.
+KNOWN_BUGS: dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,13 @@ import numpy as np
 import pandas as pd
 
 from frictionfit.errors import FitError, Status
-from frictionfit.fit._guess import direction_of, initial_guess, multi_starts
+from frictionfit.fit._guess import (
+    direction_of,
+    initial_guess,
+    multi_starts,
+    saturated_samples,
+    trial_keys,
+)
 from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
 from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
 from frictionfit.fit._problem import jacobian_fn, normal_fn
@@ -76,7 +82,7 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
         if name in names:
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
     data = (*data, base)
-    starts = multi_starts(model, base, opts["n_starts"], opts["seed"])
+    starts = multi_starts(model, base, opts["n_starts"], opts["seed"], keys=opts["keys"])
     if extra_starts is not None:
         extra = np.array(extra_starts, dtype=np.float64)
         held = [j for j in range(len(names)) if j not in free]
@@ -88,7 +94,7 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
     status = np.array([
         Status.NONFINITE if nonfinite[i] and t_mask[i].sum() >= 3 * len(free)
         else status_of(len(free), converged[i], u[i], stats["chi2"][i], stats["cond"][i],
-                       t_mask[i])
+                       t_mask[i], saturated=opts["saturated"][i])
         for i in range(u.shape[0])], dtype=np.int64)
     return dict(stats, u=u, steps=steps, status=status, free=free)
 
@@ -167,7 +173,9 @@ def fit_trials(
         Unconstrained starting points (a single named model only).
     n_starts, seed : int
         Starting points per trial: the data-driven guess plus ``n_starts - 1`` seeded
-        jitters of it; the lowest-cost optimum is kept.
+        jitters of it; the lowest-cost optimum is kept. Each trial's jitter is drawn
+        from ``(seed, a key of its own samples)``, so a trial's result does not depend
+        on which other trials share its batch.
     fix : mapping name -> physical value, optional
         Parameters held at a known value (flagged "fixed", stderr 0).
     tie, groups : sequence of str, array (n_trials,)
@@ -183,6 +191,8 @@ def fit_trials(
     -------
     FitResult
         One row per trial, with a Status each: a failed trial never sinks the batch.
+        A trial with a run of ``SATURATED_RUN`` samples at its extreme value (a
+        clipped channel) is fitted without them and gets ``Status.SATURATED``.
 
     Examples
     --------
@@ -210,7 +220,9 @@ def fit_trials(
                        f"parameters are {list(PARAMS)}")
     if tie and groups is None:
         raise FitError("tie needs groups: one group label per trial (e.g. the measurement id)")
-    mask = np.isfinite(y)
+    # Samples held at a clipping extreme are censored, not measured: left out (SATURATED).
+    clipped = saturated_samples(y)
+    mask = np.isfinite(y) & ~clipped
     y_clean = np.where(mask, y, 0.0)
     if drive == "events":
         t_out, t_back = drive_input
@@ -226,7 +238,8 @@ def fit_trials(
     data = (y_clean, mask, drive_input, direction, np.full(n_trials, t[0]), np.full(n_trials, dt))
     opts = dict(solver=solver, rtol=rtol, atol=atol, ftol=ftol, max_steps=max_steps,
                 steps_per_round=steps_per_round, chunk_size=chunk_size,
-                n_starts=max(int(n_starts), 1), seed=seed, tied=())
+                n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
+                saturated=clipped.any(axis=1))
     names = [m.name for m in FAMILY] if model == "auto" else [model]
     members = [get_model(n, drive=drive, stroke_mm=stroke_mm) for n in names]
     fits, previous = {}, None

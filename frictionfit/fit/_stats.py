@@ -1,10 +1,22 @@
 """lmfit-style statistics of a batch at its optimum, identifiability flags, status, BIC choice.
 
 Covariance ``sigma^2 pinv(J^T J)`` in unconstrained coordinates, mapped to physical
-standard errors by the delta method; chi-square, reduced chi-square, AIC and BIC
-with the sample count deflated by the residuals' lag-1 autocorrelation
-(``n (1 - rho) / (1 + rho)``: autocorrelated residuals would otherwise inflate every
-BIC difference), and the condition number of the column-scaled ``J^T J``.
+standard errors by the delta method; chi-square, reduced chi-square, and the
+condition number of the column-scaled ``J^T J``.
+
+AIC and BIC come from the Gaussian AR(1) likelihood of the residuals, the noise's
+lag-1 coefficient ``rho`` and innovation variance profiled out (one more fitted
+parameter): ``-2 log L = n log(S / n) - g log(1 - rho^2)`` with ``S`` the
+prewhitened sum of squares (``r_t - rho r_{t-1}``; the first sample of each of the
+``g`` contiguous runs of finite samples scaled by ``sqrt(1 - rho^2)``). Rubbing
+residuals are autocorrelated, and the white-noise likelihood would then inflate
+every BIC difference; white residuals give ``rho ~ 0`` and the ordinary BIC. Each
+member's BIC is a likelihood of the same data in the same units, so the
+differences are comparable. (The former rule, ``n_eff log(chi2 / n)`` with a
+per-member ``n_eff = n (1 - rho) / (1 + rho)``, was not: ``n_eff`` multiplied the
+log of a variance in N^2, so ``rho`` falling by 0.002 from stick_slip to relaxation
+(noise sd 0.05 N, ``log(chi2/n) = -6.1``) lowered the bigger member's BIC by ~40,
+more than its parameter penalty: 6 of 32 stick-slip trials went to relaxation.)
 
 A parameter is flagged (not reported as a confident number) when it sits on a
 bound, when its standard error is undefined or exceeds its value, or when it is
@@ -22,7 +34,8 @@ import pandas as pd
 from frictionfit.errors import Status
 from frictionfit.models import ContactModel
 
-__all__ = ["BIC_TIE", "CORRELATED", "ILL_CONDITIONED", "choose", "statistics", "status_of"]
+__all__ = ["BIC_TIE", "CORRELATED", "ILL_CONDITIONED", "RHO_MAX", "ar1_deviance", "choose",
+           "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -76,6 +89,33 @@ def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
     return values, errs, flags, cond
 
 
+#: Bound on the AR(1) coefficient of the residuals (keeps ``log(1 - rho^2)`` finite).
+RHO_MAX = 0.99
+
+
+def ar1_deviance(resid, mask) -> np.ndarray:
+    """``-2 log L`` (constant dropped) of residuals under Gaussian AR(1) noise, per trial.
+
+    ``resid`` (n_trials, n_samples), zero where ``mask`` is False. The coefficient
+    is the lag-1 least-squares estimate over pairs of finite neighbours, clipped to
+    ``[-RHO_MAX, RHO_MAX]``; each contiguous run of finite samples starts a new
+    stationary segment (a gap of missing samples breaks the recurrence).
+    """
+    resid = np.where(mask, resid, 0.0)
+    n = mask.sum(axis=1).astype(np.float64)
+    pair = mask[:, 1:] & mask[:, :-1]
+    prev, cur = resid[:, :-1] * pair, resid[:, 1:] * pair
+    rho = np.sum(prev * cur, axis=1) / np.maximum(np.sum(prev**2, axis=1), 1e-300)
+    rho = np.clip(np.nan_to_num(rho), -RHO_MAX, RHO_MAX)
+    starts = mask.copy()
+    starts[:, 1:] &= ~mask[:, :-1]  # first finite sample of each run
+    lead = (1 - rho**2) * np.sum(np.where(starts, resid, 0.0) ** 2, axis=1)
+    sse = lead + np.sum((cur - rho[:, None] * prev) ** 2, axis=1)
+    g = starts.sum(axis=1)
+    return (n * np.log(np.maximum(sse / np.maximum(n, 1.0), 1e-300))
+            - g * np.log1p(-rho**2))
+
+
 def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):
     """Statistics of one family member over a batch (NumPy).
 
@@ -94,12 +134,9 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     p = len(free)
     chi2 = np.sum(resid**2, axis=1)
     redchi = chi2 / np.maximum(n - p, 1.0)
-    r0, r1 = resid[:, :-1], resid[:, 1:]
-    rho = np.clip(np.sum(r0 * r1, axis=1) / np.maximum(chi2, 1e-300), 0.0, 0.99)
-    n_eff = np.maximum(n * (1 - rho) / (1 + rho), p + 2.0)
-    loglike_term = n_eff * np.log(np.maximum(chi2 / np.maximum(n, 1.0), 1e-300))
-    aic = loglike_term + 2 * p
-    bic = loglike_term + p * np.log(n_eff)
+    m2 = ar1_deviance(resid, mask)
+    aic = m2 + 2 * (p + 1)
+    bic = m2 + (p + 1) * np.log(np.maximum(n, 1.0))
     values, stderrs, flags, conds = [], [], [], []
     for i in range(u.shape[0]):
         if not (np.all(np.isfinite(jtj[i])) and np.all(np.isfinite(u[i]))
@@ -133,12 +170,19 @@ def choose(bic: pd.DataFrame) -> list[str]:
     return chosen
 
 
-def status_of(n_free: int, converged: bool, u, chi2: float, cond: float, mask) -> Status:
-    """The Status of one trial from its solver outcome and statistics."""
+def status_of(n_free: int, converged: bool, u, chi2: float, cond: float, mask,
+              saturated: bool = False) -> Status:
+    """The Status of one trial from its solver outcome and statistics.
+
+    ``saturated``: the channel was clipped (some samples censored); that outranks
+    every solver outcome but too little data and a non-finite result.
+    """
     if mask.sum() < 3 * n_free:
         return Status.INSUFFICIENT_DATA
     if not (np.all(np.isfinite(u)) and np.isfinite(chi2)):
         return Status.NONFINITE
+    if saturated:
+        return Status.SATURATED
     if not converged:
         return Status.MAX_STEPS
     if cond > ILL_CONDITIONED:
