@@ -13,6 +13,7 @@ from frictionfit.classify import (
     labels_of,
     make_classifier,
     make_pipeline,
+    projection_for,
     splits,
 )
 from frictionfit.errors import DatasetError
@@ -110,6 +111,27 @@ def test_evaluate_scores_a_separable_set(recordings):
     assert ev.breakdown["session"]["n"].sum() == len(recordings)
     assert ev.derived_accuracy("layers", recordings) == pytest.approx(1.0)
     assert len(ev.fold_accuracy) == 3
+
+
+def test_auto_projection_is_lda_when_the_data_span_several_sessions(recordings):
+    assert projection_for(recordings) == "lda"
+    one_session = [r for r in recordings if r.metadata["session"] == 1]
+    assert projection_for(one_session) is None
+    assert projection_for(one_session, "lda") == "lda"
+    assert projection_for(recordings, None) is None
+    with pytest.raises(ValueError, match="unknown projection 'pca'"):
+        projection_for(recordings, "pca")
+    with pytest.raises(ValueError, match="unknown projection 'pca'"):
+        make_pipeline("handcrafted", project="pca")
+
+
+def test_lda_projection_sits_between_scaler_and_classifier(recordings):
+    y = labels_of(recordings)
+    pipe = make_pipeline("handcrafted", "svm-ovo", project="lda").fit(recordings, y)
+    assert [name for name, _ in pipe.steps] == ["features", "scale", "project", "classifier"]
+    assert pipe[:-1].transform(recordings).shape == (len(recordings), 2)  # 3 classes -> 2 axes
+    ev = evaluate(recordings, "handcrafted", "svm-ovo", "leave-one-session-out")  # auto: lda
+    assert ev.accuracy == pytest.approx(1.0)
 
 
 def test_evaluate_layers_as_target(recordings):

@@ -137,7 +137,9 @@ def test_physical_measured_features_are_offset_free():
     # sample (1 ms), which moves times by 1e-3 s and forces by far less
     np.testing.assert_allclose(f.transform([shifted]), base, rtol=1e-3, atol=1.5e-3)
     assert f.get_feature_names_out()[0] == "thumb_x:out_rise [N]"
-    assert base.shape == (1, 4 * 2 * N_BASIC)
+    assert base.shape == (1, 4 * 2 * len(MEASURED))
+    assert PhysicalFeatures(shape=False, cache=False).fit_transform([hand_built()]).shape == (
+        1, 4 * 2 * N_BASIC)
 
 
 def test_a_recording_without_motions_is_filled_and_named():

@@ -21,7 +21,13 @@ from sklearn.pipeline import make_pipeline as sk_pipeline
 from sklearn.preprocessing import StandardScaler
 
 from frictionfit.bench._timing import alternate, machine_info
-from frictionfit.classify import evaluate, labels_of, make_classifier, make_pipeline
+from frictionfit.classify import (
+    evaluate,
+    labels_of,
+    make_classifier,
+    make_pipeline,
+    projection_for,
+)
 from frictionfit.datasets import load_dataset
 from frictionfit.features import make_features
 from frictionfit.simulation.gestures import simulate_gestures
@@ -72,7 +78,7 @@ def _rubbing(quick: bool, seed: int) -> tuple[list[dict], dict]:
         feats = make_features(name, cache=False, **params)
         seconds = alternate({name: lambda f=feats: f.fit_transform(recs)},
                             repeats=1, warmup=False)[name]["median_s"] / len(recs)
-        pipe = make_pipeline(name, "svm-ovo", seed=seed, **params)
+        pipe = make_pipeline(name, "svm-ovo", seed=seed, project=projection_for(recs), **params)
         ev = evaluate(recs, protocol="leave-one-session-out", pipeline=pipe, seed=seed)
         config = f"rubbing/{name}{'' if params.get('fitted', True) else '-measured'}/svm-ovo"
         summary[f"{config}/seconds_per_measurement"] = seconds

@@ -10,6 +10,8 @@ DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical, handcrafted, fftbins, spectral, raw, gesture, touch, "
                  "shortcut; a comma list concatenates them.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
+PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
+                "within-class scatter), none, or auto: lda when the data span several sessions.")
 #: Metadata columns written beside the features / predictions when present.
 GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
 #: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
@@ -73,32 +75,42 @@ def train(
     dataset: str = typer.Option(..., help=DATASET_HELP),
     features: str = typer.Option("physical", help=FEATURES_HELP),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
+    project: str = typer.Option("auto", help=PROJECT_HELP),
     out: Path = typer.Option(Path("model.joblib"), help="Where to save the model."),
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
 ) -> None:
-    """Train features -> (session standardisation) -> scaler -> classifier on a labelled dataset."""
+    """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
     import joblib
 
-    from frictionfit.classify import labels_of, make_pipeline
+    from frictionfit.classify import labels_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
 
     recordings = _load(dataset)
     try:
         y = labels_of(recordings)
-        pipeline = make_pipeline(features, classifier, seed=seed).fit(recordings, y)
+        pipeline = make_pipeline(features, classifier, seed=seed,
+                                 project=projection_for(recordings, _projection(project)))
+        pipeline.fit(recordings, y)
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
     joblib.dump({
         "pipeline": pipeline,
         "features": features,
         "classifier": classifier,
-        "feature_names": list(pipeline[:-2].get_feature_names_out()),
+        "project": "lda" if "project" in pipeline.named_steps else "none",
+        "feature_names": list(pipeline["features"].get_feature_names_out()),
         "labels": sorted(map(str, set(y))),
         "n_train": len(recordings),
         "frictionfit_version": _version(),
     }, out)
     typer.echo(f"trained {features} + {classifier} on {len(recordings)} recordings "
                f"({len(set(y))} classes) -> {out}")
+
+
+def _projection(name: str) -> str | None:
+    if name not in ("auto", "lda", "none"):
+        _fail(f"unknown projection {name!r}; choose auto, lda or none")
+    return None if name == "none" else name
 
 
 def _version() -> str:
@@ -150,6 +162,7 @@ def evaluate(
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     protocol: str = typer.Option("kfold", help="kfold, mixed-5fold, person-dependent, holdout, "
                                  "leave-one-{session,person,repetition,pressure}-out."),
+    project: str = typer.Option("auto", help=PROJECT_HELP),
     target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),
     out: Path = typer.Option(None, help="Save the scores (.csv)."),
     confusion: Path = typer.Option(None, help="Save the confusion matrix (.png)."),
@@ -164,11 +177,16 @@ def evaluate(
     """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
     import pandas as pd
 
-    from frictionfit.classify import CLASSIFIERS
+    from frictionfit.classify import CLASSIFIERS, projection_for
     from frictionfit.classify import evaluate as run
     from frictionfit.errors import FrictionfitError
 
+    projection = _projection(project)
     recordings = _load(dataset)
+    try:
+        projection = projection_for(recordings, projection)
+    except ValueError as exc:
+        _fail(str(exc))
     if all_:
         kind = dataset.partition(":")[0]
         default_sets, default_protocols = ALL_DEFAULTS.get(kind, ALL_DEFAULTS["recordings"])
@@ -178,10 +196,11 @@ def evaluate(
                   for p in (protocols.split(",") if protocols else default_protocols)]
     else:
         combos = [(features, classifier, protocol)]
+    typer.echo(f"projection before the classifier: {projection or 'none'}")
     rows = []
     for f, c, p in combos:
         try:
-            ev = run(recordings, f, c, p, target=target, seed=seed)
+            ev = run(recordings, f, c, p, target=target, seed=seed, project=projection)
         except (FrictionfitError, ValueError, ImportError) as exc:
             if not all_:
                 _fail(str(exc))

@@ -28,16 +28,19 @@ def _sample_recordings(data: Path, out: Path) -> list:
 
 def _classify(recs: list, fitted: bool) -> None:
     """Train on a small simulated set (other sessions) and classify the sample recordings."""
-    from frictionfit.classify import labels_of, make_pipeline
+    from frictionfit.classify import labels_of, make_pipeline, projection_for
     from frictionfit.simulation.measurements import simulate_measurements
 
     classes = sorted({str(r.label) for r in recs})
     train = simulate_measurements([(s, c, t) for s in (2, 3) for c in classes for t in (1, 2)],
                                   SAMPLE["seed"])
     kind = "fitted + measured" if fitted else "measured"
-    typer.echo(f"\nclassification: physical features ({kind}), RBF SVM, trained on "
+    project = projection_for(train)
+    projection = "LDA projection + " if project else ""
+    typer.echo(f"\nclassification: physical features ({kind}), {projection}RBF SVM, trained on "
                f"{len(train)} simulated measurements of sessions 2-3")
-    pipe = make_pipeline("physical", "svm-ovo", normalise_by=None, fitted=fitted)
+    pipe = make_pipeline("physical", "svm-ovo", normalise_by=None, fitted=fitted,
+                         project=project)
     predicted = pipe.fit(train, labels_of(train)).predict(recs)
     for rec, label in zip(recs, predicted, strict=True):
         verdict = "ok" if label == rec.label else "WRONG"
