@@ -54,3 +54,21 @@ def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
 def test_fit_with_nothing_to_fit_exits_2(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(tmp_path)])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output
+
+
+def test_fit_on_a_dask_scheduler_equals_the_local_fit(tmp_path):
+    distributed = __import__("pytest").importorskip("distributed")
+    _measurement(tmp_path)
+    args = ["fit", str(tmp_path / "m1.csv"), "--model", "elastic_plastic",
+            "--uncertainty", "laplace"]
+    local, remote = tmp_path / "local.csv", tmp_path / "remote.csv"
+    assert CliRunner().invoke(app, [*args, "--out", str(local)]).exit_code == 0
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        result = CliRunner().invoke(app, [*args, "--out", str(remote),
+                                          "--scheduler", cluster.scheduler_address])
+    assert result.exit_code == 0, result.output
+    a, b = pd.read_csv(local), pd.read_csv(remote)
+    assert list(a["trial"]) == list(b["trial"])
+    for column in ("k [N/mm]", "f_kin [N]", "f_kin_sd [N]"):
+        np.testing.assert_allclose(b[column], a[column], rtol=1e-6)

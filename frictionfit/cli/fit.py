@@ -28,6 +28,9 @@ def fit(
                                   "(repeatable), e.g. --fix tau=0.1."),
     tie: list[str] = typer.Option([], help="NAME: share a parameter across the channels of "
                                   "each motion (repeatable)."),
+    scheduler: str = typer.Option(None, help="Dask scheduler address (e.g. tcp://host:8786): "
+                                  "partition the trials across its workers; results equal the "
+                                  "local ones up to rounding."),
 ) -> None:
     """Fit every non-preparatory motion x channel; one row per trial with status and stderr."""
     import numpy as np
@@ -40,6 +43,9 @@ def fit(
     if uncertainty not in ("none", "laplace", "emcee", "auto"):
         raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
                                  param_hint="--uncertainty")
+    if scheduler and chains is not None:
+        raise typer.BadParameter("one HDF5 file cannot take writes from many Dask workers",
+                                 param_hint="--chains with --scheduler")
     try:
         fixed = {k: float(v) for k, v in (item.split("=", 1) for item in fix)}
     except ValueError:
@@ -69,20 +75,23 @@ def fit(
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
     typer.echo(f"fitting {len(ys)} trials ({len(files)} recordings), model={model} ...")
+    y, drive_input = np.asarray(ys), (np.asarray(t_outs), np.asarray(t_backs))
+    options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
+                   fix=fixed, tie=tie, groups=np.asarray(groups))
     try:
-        result = fit_trials(np.asarray(ys), t, (np.asarray(t_outs), np.asarray(t_backs)),
-                            model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts,
-                            seed=seed, fix=fixed, tie=tie, groups=np.asarray(groups))
+        if scheduler:
+            from frictionfit.distributed import fit_distributed
+
+            result = fit_distributed(y, t, drive_input, scheduler=scheduler, **options)
+        else:
+            result = fit_trials(y, t, drive_input, **options)
     except (FrictionfitError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     frame = result.to_frame(ids)
     if uncertainty != "none":
-        from frictionfit.uncertainty import sample_posterior
-
-        post = sample_posterior(result, np.asarray(ys), t, (np.asarray(t_outs),
-                                np.asarray(t_backs)), method=uncertainty, chains_path=chains)
-        frame = frame.merge(post.to_frame(ids), on="trial")
+        frame = frame.merge(_posterior(result, y, t, drive_input, uncertainty, chains,
+                                       scheduler).to_frame(ids), on="trial")
     if out.suffix == ".parquet":
         frame.to_parquet(out)
     else:
@@ -97,3 +106,15 @@ def fit(
     typer.echo(f"{len(frame)} trials in {result.wall_s:.1f} s; status {counts}; wrote {out}")
     if report:
         typer.echo(fit_report(result, 0))
+
+
+def _posterior(result, y, t, drive_input, method: str, chains: Path | None, scheduler: str | None):
+    """``sample_posterior`` locally, or spread over the Dask cluster at ``scheduler``."""
+    if scheduler:
+        from frictionfit.distributed import posterior_distributed
+
+        return posterior_distributed(result, y, t, drive_input, scheduler=scheduler,
+                                     method=method)
+    from frictionfit.uncertainty import sample_posterior
+
+    return sample_posterior(result, y, t, drive_input, method=method, chains_path=chains)
