@@ -7,6 +7,7 @@ import pytest
 
 from frictionfit.classify import (
     CLASSIFIERS,
+    DiscriminantProjection,
     SessionNormalised,
     evaluate,
     evaluate_incremental,
@@ -125,11 +126,22 @@ def test_auto_projection_is_lda_when_the_data_span_several_sessions(recordings):
         make_pipeline("handcrafted", project="pca")
 
 
+def test_discriminant_projection_needs_more_rows_than_features():
+    rng = np.random.default_rng(0)
+    y = np.repeat([0, 1, 2], 20)
+    x = rng.normal(size=(60, 5)) + 3.0 * y[:, None] * np.array([1.0, 0, 0, 0, 0])
+    proj = DiscriminantProjection().fit(x, y)
+    assert proj.transform(x).shape == (60, 2)  # 3 classes -> 2 discriminant axes
+    z = proj.transform(x)[:, 0]
+    assert abs(np.corrcoef(z, y)[0, 1]) > 0.95  # the class direction comes first
+    wide = rng.normal(size=(60, 58))  # 60 rows - 3 classes = 57 <= 58 features: pass through
+    np.testing.assert_array_equal(DiscriminantProjection().fit(wide, y).transform(wide), wide)
+
+
 def test_lda_projection_sits_between_scaler_and_classifier(recordings):
     y = labels_of(recordings)
     pipe = make_pipeline("handcrafted", "svm-ovo", project="lda").fit(recordings, y)
     assert [name for name, _ in pipe.steps] == ["features", "scale", "project", "classifier"]
-    assert pipe[:-1].transform(recordings).shape == (len(recordings), 2)  # 3 classes -> 2 axes
     ev = evaluate(recordings, "handcrafted", "svm-ovo", "leave-one-session-out")  # auto: lda
     assert ev.accuracy == pytest.approx(1.0)
 

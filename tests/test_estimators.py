@@ -11,7 +11,12 @@ from sklearn.pipeline import FeatureUnion
 from sklearn.svm import SVC
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from frictionfit.classify import SessionNormalised, make_classifier, make_pipeline
+from frictionfit.classify import (
+    DiscriminantProjection,
+    SessionNormalised,
+    make_classifier,
+    make_pipeline,
+)
 from frictionfit.features import make_features
 from frictionfit.features.fftbins import FFTBinFeatures
 from frictionfit.features.handcrafted import HandcraftedFeatures
@@ -36,6 +41,11 @@ def _known_failures(estimator) -> dict:
                           make_classifier("svm-quadratic")],
                          expected_failed_checks=_known_failures)
 def test_classifiers_follow_the_sklearn_contract(estimator, check):
+    check(estimator)
+
+
+@parametrize_with_checks([DiscriminantProjection()])
+def test_the_projection_follows_the_sklearn_contract(estimator, check):
     check(estimator)
 
 
