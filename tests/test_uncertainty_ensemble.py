@@ -80,3 +80,61 @@ def test_lockstep_batches_all_running_trials_into_one_call(rng):
 def test_a_single_trial_is_evaluated_at_once():
     box = _Lockstep(lambda batch: {s: x.sum(axis=1) for s, x in batch.items()}, 1)
     assert box.log_prob(0)(np.ones((2, 3))).tolist() == [3.0, 3.0]
+
+
+def test_t_mixture_density_matches_scipy_and_its_draws(rng):
+    from scipy import stats
+
+    from frictionfit.uncertainty._proposal import TMixture
+
+    mean, cov = np.array([1.0, -2.0]), np.array([[2.0, 0.6], [0.6, 0.5]])
+    mix = TMixture.gaussian_t(mean, cov, df=5.0)
+    x = rng.normal(size=(7, 2))
+    np.testing.assert_allclose(mix.logpdf(x), stats.multivariate_t(mean, cov, df=5).logpdf(x),
+                               rtol=1e-10)
+    draws = mix.rvs(20000, np.random.RandomState(0))
+    np.testing.assert_allclose(np.cov(draws.T), cov * 5 / 3, rtol=0.1)
+
+
+def test_ridge_map_is_an_inverse_pair_and_straightens_a_banana(rng):
+    from frictionfit.uncertainty._proposal import MappedT, RidgeMap, TMixture
+
+    s = rng.normal(size=4000)
+    draws = np.stack([s, 0.8 * s**2 + 0.05 * rng.normal(size=s.size)], axis=1)
+    ridge = RidgeMap.fit(draws)
+    assert ridge is not None and ridge.r == 0
+    np.testing.assert_allclose(ridge.inverse(ridge.forward(draws)), draws, atol=1e-12)
+    assert np.std(ridge.forward(draws)[:, 1]) < 0.1  # the curved ridge is now straight
+    prop = MappedT.fit(draws, TMixture.gaussian_t(draws.mean(0), np.cov(draws.T)))
+    x = prop.rvs(5, np.random.RandomState(1))
+    assert x.shape == (5, 2) and np.all(np.isfinite(prop.logpdf(x)))
+
+
+def test_sampling_coordinates_carry_the_same_posterior():
+    """log p_x(x) = log p_u(u(x)) + log |du/dx| (the priors become flat boxes)."""
+    from frictionfit.models import get_model
+    from frictionfit.uncertainty._logpost import (
+        TrialData,
+        from_sampling,
+        logp_rows,
+        to_sampling,
+    )
+
+    model = get_model("elastic_plastic")
+    t = np.arange(400) / 1000.0
+    u = np.array([[0.1, 0.3, -0.2, 0.0, 0.4], [0.0, -1.0, 0.5, 0.3, -0.2]])
+    y = np.zeros((2, t.size))
+    data = TrialData(t, y, np.ones_like(y, dtype=bool), np.full(2, 0.05), np.full(2, 0.25),
+                     np.ones(2), np.ones(2), np.zeros(2))
+    x = to_sampling(model, u)
+    np.testing.assert_allclose(from_sampling(model, x), u, atol=1e-9)
+    idx = np.arange(2)
+    lp_u = np.asarray(logp_rows(model)(u, idx, data.t, *data.arrays()))
+    lp_x = np.asarray(logp_rows(model, True)(x, idx, data.t, *data.arrays()))
+    h = 1e-6
+    dxdu = (to_sampling(model, u + h) - to_sampling(model, u - h)) / (2 * h)
+    diff = lp_x - (lp_u - np.sum(np.log(dxdu), axis=1))
+    np.testing.assert_allclose(diff, diff[0], atol=1e-6)  # equal up to one constant
+    outside = x.copy()
+    outside[0, 1] = 99.0  # log stiffness beyond its bound
+    assert np.asarray(logp_rows(model, True)(outside, idx, data.t, *data.arrays()))[0] == -np.inf

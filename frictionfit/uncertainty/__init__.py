@@ -33,7 +33,14 @@ from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.models import get_model
 from frictionfit.uncertainty._ensemble import ChainResult, SerialHDFBackend, run_lockstep
-from frictionfit.uncertainty._logpost import TrialData, logp_rows, noise_estimate, residuals
+from frictionfit.uncertainty._logpost import (
+    TrialData,
+    from_sampling,
+    logp_rows,
+    noise_estimate,
+    residuals,
+    to_sampling,
+)
 from frictionfit.uncertainty.laplace import laplace, profile_disagreement
 from frictionfit.uncertainty.posterior import (
     QUANTILES,
@@ -106,9 +113,9 @@ def _emcee_summary(model, chain: ChainResult):
     return quant, sd, tau, ess_d
 
 
-def _evaluator(model, data: TrialData):
+def _evaluator(model, data: TrialData, sampling: bool = False):
     """``evaluate(U, idx)`` for the lockstep sampler; rows padded to a power of two."""
-    f = logp_rows(model)
+    f = logp_rows(model, sampling)
 
     def evaluate(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
         n = U.shape[0]
@@ -130,10 +137,11 @@ def sample_posterior(
     noise: str = "ar1",
     nwalkers: int | None = None,
     max_steps: int = 3000,
-    check_every: int = 50,
+    check_every: int = 25,
     min_tau_multiple: float = 50.0,
     seed: int = 0,
     chains_path=None,
+    pilot_steps: int = 30,
 ) -> Posterior:
     """Posterior of every trial's parameters, by Laplace and/or emcee.
 
@@ -154,11 +162,15 @@ def sample_posterior(
     nwalkers : int, optional
         Walkers per trial; default ``2 * n_params + 2``.
     max_steps, check_every, min_tau_multiple
-        emcee step cap, steps between tau checks, required chain length in tau.
+        emcee step cap (of the kept chain), steps between tau checks, required chain
+        length in tau.
     seed : int
         Seed of the walkers' start and moves (trial ``i`` uses ``seed + i``).
     chains_path : path, optional
-        Save emcee chains to this HDF5 file (one group ``trial_<i>`` per trial).
+        Save emcee chains to this HDF5 file (one group ``trial_<i>`` per trial), in
+        sampling coordinates (log of log-scaled parameters: see ``_logpost``).
+    pilot_steps : int
+        Steps of each of the three adaptation stages before the kept chain.
 
     Returns
     -------
@@ -216,12 +228,13 @@ def sample_posterior(
             continue
         _sample_group(model, fit, rows, t, y0[rows], mask[rows], t_out[rows], t_back[rows],
                       method, noise, nwalkers or 2 * model.n_params + 2, max_steps,
-                      check_every, min_tau_multiple, seed, chains_path, out)
+                      check_every, min_tau_multiple, seed, chains_path, out, pilot_steps)
     return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
 
 
 def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nwalkers,
-                  max_steps, check_every, min_tau_multiple, seed, chains_path, out) -> None:
+                  max_steps, check_every, min_tau_multiple, seed, chains_path, out,
+                  pilot_steps=30) -> None:
     """Laplace for every trial of one model, then emcee where ``method`` asks for it."""
     u_hat = np.stack([fit.u[i] for i in rows])
     direction = _directions(model, t, y, mask, t_out, t_back, u_hat)
@@ -258,20 +271,28 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
         return
     fallback = np.diag(np.full(model.n_params, 1e-2))
     covs = np.stack([cov[k] if finite[k] else fallback for k in sel])
+    # emcee runs in sampling coordinates (log values: see _logpost); the Laplace
+    # Gaussian is carried there to first order (the pilot run corrects it).
+    x_mode = to_sampling(model, mode[sel])
+    h = 1e-6
+    jac = (to_sampling(model, mode[sel] + h) - to_sampling(model, mode[sel] - h)) / (2 * h)
+    covs = covs * jac[:, :, None] * jac[:, None, :]
     backends = None
     if chains_path is not None:
         backends = [SerialHDFBackend(str(chains_path), name=f"trial_{rows[k]}") for k in sel]
     sub = TrialData(t, y[sel], mask[sel], t_out[sel], t_back[sel], direction[sel], sigma[sel],
                     rho[sel])
-    chains = run_lockstep(_evaluator(model, sub), mode[sel], covs, nwalkers=nwalkers,
+    chains = run_lockstep(_evaluator(model, sub, sampling=True), x_mode, covs, nwalkers=nwalkers,
                           seed=seed, max_steps=max_steps, check_every=check_every,
-                          min_tau_multiple=min_tau_multiple, backends=backends)
+                          min_tau_multiple=min_tau_multiple, backends=backends,
+                          pilot_steps=pilot_steps)
     for k, chain in zip(sel, chains, strict=True):
         i = rows[k]
         out["method"][i] = "emcee"
         if isinstance(chain, BaseException):
             out["reason"][i] = f"emcee failed: {chain}"
             continue
+        chain.samples = from_sampling(model, chain.samples)
         out["chains"][i] = chain
         out["converged"][i] = chain.converged
         out["acceptance"][i] = chain.acceptance

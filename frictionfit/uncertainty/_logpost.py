@@ -13,6 +13,16 @@ physical value is uniform over its bounds (``logit``) or log-uniform over them
 (``loglogit``: stiffness, friction levels, lengths and times span decades).
 Offsets (``identity``) get a Normal(0, ``OFFSET_PRIOR_SD_N``) prior. A NaN or
 infinite log-posterior is mapped to ``-inf`` (the sampler rejects the move).
+
+emcee samples the same posterior in *sampling coordinates* (:func:`to_sampling`):
+the log of a ``loglogit`` parameter, the value of a ``logit`` one, an offset as
+is. There the priors above are flat on the bounds (the logistic density in ``u``
+is exactly the Jacobian of the logistic map), so the posterior density is the
+likelihood times a box, and the map back to ``u`` is exact. Why: the contact
+model's weakly identified directions are straight lines in log units (the onset
+of a trial fixes ``k / ramp**2`` and ``slip_length * ramp**2``: posterior
+correlations 0.99), but the logistic map of ``u`` bends them into thin curved
+ridges, on which every emcee move mixes slowly (see ``_ensemble``).
 """
 
 from __future__ import annotations
@@ -25,7 +35,8 @@ import numpy as np
 
 from frictionfit.models import ContactModel
 
-__all__ = ["OFFSET_PRIOR_SD_N", "TrialData", "log_prior", "logp_rows", "noise_estimate"]
+__all__ = ["OFFSET_PRIOR_SD_N", "TrialData", "from_sampling", "log_prior", "logp_rows",
+           "noise_estimate", "sampling_bounds", "to_sampling"]
 
 #: Prior sd of a channel offset, N (sensor offsets are at most tens of N).
 OFFSET_PRIOR_SD_N = 100.0
@@ -41,6 +52,43 @@ def log_prior(model: ContactModel, u):
         else:  # standard logistic: uniform on the (log-)span of the bounds
             total = total - jax.nn.softplus(uj) - jax.nn.softplus(-uj)
     return total
+
+
+def sampling_bounds(model: ContactModel) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bound of each sampling coordinate (+/-inf for offsets)."""
+    lo = np.array([-np.inf if p.transform == "identity" else float(p._span(np)[0])
+                   for p in model.params])
+    hi = np.array([np.inf if p.transform == "identity" else float(p._span(np)[1])
+                   for p in model.params])
+    return lo, hi
+
+
+def to_sampling(model: ContactModel, u: np.ndarray) -> np.ndarray:
+    """Sampling coordinates (log value, value, or offset) of unconstrained ``u[..., p]``."""
+    u = np.asarray(u, dtype=np.float64)
+    lo, hi = sampling_bounds(model)
+    bounded = np.isfinite(lo)
+    span = np.where(bounded, hi - lo, 1.0)
+    s = 0.5 * (1.0 + np.tanh(0.5 * u))
+    return np.where(bounded, np.where(bounded, lo, 0.0) + span * s, u)
+
+
+def from_sampling(model: ContactModel, x, xp=np):
+    """Unconstrained ``u`` of sampling coordinates ``x[..., p]`` (NumPy or ``xp=jnp``)."""
+    lo, hi = sampling_bounds(model)
+    bounded = np.isfinite(lo)
+    lo0, span = np.where(bounded, lo, 0.0), np.where(bounded, hi - lo, 1.0)
+    frac = xp.clip((x - lo0) / span, 1e-300, 1.0)
+    return xp.where(bounded, xp.log(frac) - xp.log1p(-xp.minimum(frac, 1.0 - 1e-16)), x)
+
+
+def log_prior_sampling(model: ContactModel, x):
+    """Log prior in sampling coordinates: flat inside the bounds, -inf outside."""
+    lo, hi = sampling_bounds(model)
+    inside = jnp.all((x > lo) & (x < hi), axis=-1)
+    off = np.array([p.transform == "identity" for p in model.params])
+    gauss = -0.5 * jnp.sum(jnp.where(off, x / OFFSET_PRIOR_SD_N, 0.0) ** 2, axis=-1)
+    return jnp.where(inside, gauss, -jnp.inf)
 
 
 def log_likelihood_ar1(resid, mask, sigma, rho):
@@ -78,25 +126,32 @@ class TrialData:
                 self.rho)
 
 
-def _one_logp(model: ContactModel, u, t, y, mask, t_out, t_back, direction, sigma, rho):
+def _one_logp(model: ContactModel, u, t, y, mask, t_out, t_back, direction, sigma, rho,
+              sampling=False):
+    if sampling:  # u holds sampling coordinates
+        prior = log_prior_sampling(model, u)
+        u = from_sampling(model, u, jnp)
+    else:
+        prior = log_prior(model, u)
     pred = model.predict(u, t, (t_out, t_back), direction)
     resid = jnp.where(mask, pred - y, 0.0)
-    lp = log_likelihood_ar1(resid, mask, sigma, rho) + log_prior(model, u)
+    lp = log_likelihood_ar1(resid, mask, sigma, rho) + prior
     return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
 
 @lru_cache(maxsize=32)
-def logp_rows(model: ContactModel):
+def logp_rows(model: ContactModel, sampling: bool = False):
     """Jitted ``f(U (R, p), idx (R,), t, *TrialData.arrays()) -> log-posterior (R,)``.
 
     Row ``r`` is walker ``U[r]`` of trial ``idx[r]``: walkers of many trials go
-    through one vmapped call.
+    through one vmapped call. ``sampling=True``: ``U`` in sampling coordinates
+    (:func:`to_sampling`), the density of the same posterior there.
     """
 
     def rows(U, idx, t, y, mask, t_out, t_back, direction, sigma, rho):
         def one(u, i):
             return _one_logp(model, u, t, y[i], mask[i], t_out[i], t_back[i], direction[i],
-                             sigma[i], rho[i])
+                             sigma[i], rho[i], sampling)
 
         return jax.vmap(one)(U, idx)
 
