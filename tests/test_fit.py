@@ -98,6 +98,24 @@ def test_ar1_deviance_is_unit_free_and_whitens_correlated_residuals():
     assert np.all(np.isfinite(ar1_deviance(np.where(gappy, r, 0.0), gappy)))
 
 
+def test_shape_of_an_unseen_effect_is_flagged():
+    # tau only shapes the relaxation: when relax_frac is not told apart from 0, tau is
+    # not identifiable, however small its own stderr (tau_below_sample, gallery seed 1).
+    from frictionfit.fit._stats import statistics
+    from frictionfit.models import PARAMS, get_model
+
+    model = get_model("relaxation")
+    names = model.param_names
+    u = np.array([[PARAMS[n].to_unconstrained(PARAMS[n].default) for n in names]] * 2)
+    u[:, names.index("relax_frac")] = PARAMS["relax_frac"].to_unconstrained(0.01)
+    jtj = np.stack([np.eye(len(names)) * 1e4] * 2)
+    jtj[0, names.index("relax_frac"), names.index("relax_frac")] = 1e-6  # relaxation unseen
+    mask = np.ones((2, 100), dtype=bool)
+    stats = statistics(model, u, np.full((2, 100), 0.01), jtj, mask)
+    assert stats["flags"][0]["tau"].startswith("relax_frac not distinguishable")
+    assert "tau" not in stats["flags"][1] and "relax_frac" not in stats["flags"][1]
+
+
 def test_multi_start_jitter_is_per_trial_not_per_batch():
     from frictionfit.fit._guess import multi_starts, trial_keys
     from frictionfit.models import get_model

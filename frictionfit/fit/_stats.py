@@ -23,7 +23,8 @@ bound, when its standard error is undefined or exceeds its value, or when it is
 almost perfectly correlated (``|corr| > CORRELATED``) with another parameter: then
 only a combination of the two is determined by the trial (for instance the
 stiffness, the movement duration and the slip-weakening length while the contact
-sticks on the quadratic start of the drive).
+sticks on the quadratic start of the drive), and when it only shapes an effect whose
+size is not told apart from zero (``GATED``: a relaxation time without relaxation).
 """
 
 from __future__ import annotations
@@ -32,10 +33,10 @@ import numpy as np
 import pandas as pd
 
 from frictionfit.errors import Status
-from frictionfit.models import ContactModel
+from frictionfit.models import PARAMS, ContactModel
 
-__all__ = ["BIC_TIE", "CORRELATED", "ILL_CONDITIONED", "RHO_MAX", "ar1_deviance", "choose",
-           "statistics", "status_of"]
+__all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED", "RHO_MAX",
+           "ar1_deviance", "choose", "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -43,6 +44,11 @@ ILL_CONDITIONED = 1e12
 BIC_TIE = 2.0
 #: |correlation| above which two parameters are flagged as trading off.
 CORRELATED = 0.99
+#: A parameter that only shapes an effect (key) whose size (value) is not
+#: distinguished from its lower bound (no effect) by GATE_SDS stderr is flagged:
+#: tau of a relaxation that is not seen, the slip length of an absent static peak.
+GATED = {"tau": "relax_frac", "tau2": "relax_frac2", "slip_length": "f_static_excess"}
+GATE_SDS = 2.0
 
 
 def _delta(par, u: float) -> tuple[float, float]:
@@ -86,6 +92,12 @@ def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
             flags[par.name] = "stderr > value"
         elif p_free > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
+    for shape, size in GATED.items():
+        if shape in flags or size not in values or shape not in values:
+            continue
+        lower = PARAMS[size].lower
+        if not values[size] - GATE_SDS * errs[size] > lower + 1e-12 * max(abs(lower), 1.0):
+            flags[shape] = f"{size} not distinguishable from {lower:g}"
     return values, errs, flags, cond
 
 
