@@ -46,6 +46,26 @@ def test_result_does_not_depend_on_chunk_size(four):
     np.testing.assert_allclose(np.stack(other.u), np.stack(res.u), rtol=1e-9, atol=1e-12)
 
 
+def test_threads_do_not_change_results():
+    from frictionfit.fit import initial_guess
+    from frictionfit.fit._lm import LMConfig, solve_pool
+    from frictionfit.fit._problem import normal_fn
+    from frictionfit.models import get_model
+
+    ts = known_truth(EP, 8, seed=5)
+    model = get_model(EP)
+    n = ts.n_trials
+    times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
+    u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
+    data = (ts.y, np.isfinite(ts.y), times, ts.direction, np.full(n, ts.t[0]),
+            np.full(n, ts.t[1] - ts.t[0]), u0)
+    normal = normal_fn(model, tuple(range(model.n_params)))
+    one = solve_pool(normal, u0, data, LMConfig(), 4, threads=1)
+    two = solve_pool(normal, u0, data, LMConfig(), 4, threads=2)  # two pools of 4, in threads
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_at_least_as_good_as_scipy_lm(four):
     import jax.numpy as jnp
     from scipy.optimize import least_squares
