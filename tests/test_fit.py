@@ -116,6 +116,16 @@ def test_shape_of_an_unseen_effect_is_flagged():
     assert "tau" not in stats["flags"][1] and "relax_frac" not in stats["flags"][1]
 
 
+def test_stiffness_loaded_within_a_sample_is_only_a_lower_bound():
+    from frictionfit.fit._stats import flag_fast_loading
+
+    base = dict(f_kin=0.8, f_static_excess=0.4, ramp=0.12)
+    values = [dict(base, k=5000.0), dict(base, k=15.0), dict(base, k=0.5)]  # last: never slips
+    flags = [{}, {}, {}]
+    flag_fast_loading(flags, values, dt=1e-3, stroke_mm=1.0)
+    assert flags[0]["k"].startswith("loads within 1.2 samples") and flags[1] == flags[2] == {}
+
+
 def test_multi_start_jitter_is_per_trial_not_per_batch():
     from frictionfit.fit._guess import multi_starts, trial_keys
     from frictionfit.models import get_model

@@ -20,7 +20,7 @@ from frictionfit.fit._guess import (
 from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
 from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
 from frictionfit.fit._problem import jacobian_fn, normal_fn
-from frictionfit.fit._stats import choose, statistics, status_of
+from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult
 from frictionfit.models import FAMILY, PARAMS, get_model
 
@@ -91,6 +91,8 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
     u, converged, nonfinite, steps, resid, jtj = _solve(model, free, starts, data, opts)
     stats = statistics(model, u, resid, jtj, t_mask, free,
                        [n for n in fixed if n in names and n not in opts["tied"]])
+    if opts["drive"] == "events":
+        flag_fast_loading(stats["flags"], stats["values"], opts["dt"], opts["stroke_mm"])
     status = np.array([
         Status.NONFINITE if nonfinite[i] and t_mask[i].sum() >= 3 * len(free)
         else status_of(len(free), converged[i], u[i], stats["chi2"][i], stats["cond"][i],
@@ -239,7 +241,7 @@ def fit_trials(
     opts = dict(solver=solver, rtol=rtol, atol=atol, ftol=ftol, max_steps=max_steps,
                 steps_per_round=steps_per_round, chunk_size=chunk_size,
                 n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
-                saturated=clipped.any(axis=1))
+                saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm)
     names = [m.name for m in FAMILY] if model == "auto" else [model]
     members = [get_model(n, drive=drive, stroke_mm=stroke_mm) for n in names]
     fits, previous = {}, None

@@ -35,8 +35,9 @@ import pandas as pd
 from frictionfit.errors import Status
 from frictionfit.models import PARAMS, ContactModel
 
-__all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED", "RHO_MAX",
-           "ar1_deviance", "choose", "statistics", "status_of"]
+__all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
+           "MIN_LOADING_SAMPLES", "RHO_MAX", "ar1_deviance", "choose", "flag_fast_loading",
+           "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -99,6 +100,29 @@ def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
         if not values[size] - GATE_SDS * errs[size] > lower + 1e-12 * max(abs(lower), 1.0):
             flags[shape] = f"{size} not distinguishable from {lower:g}"
     return values, errs, flags, cond
+
+
+#: Samples of sticking below which the stiffness is not measured (only bounded below).
+MIN_LOADING_SAMPLES = 2.0
+
+
+def flag_fast_loading(flags, values, dt: float, stroke_mm: float) -> None:
+    """Flag ``k`` (in place) where the fitted contact loads within MIN_LOADING_SAMPLES samples.
+
+    With the raised-cosine drive (``drive="events"``) the spring reaches the static
+    limit ``(f_kin + f_static_excess) / k`` after ``ramp / pi * arccos(1 - 2 z / stroke)``
+    s. When that is about one sample, any stiffer contact fits the data as well: the
+    likelihood is one-sided in ``k`` and its Gaussian stderr is no interval.
+    """
+    for f, v in zip(flags, values, strict=True):
+        if "k" in f or not {"k", "f_kin", "ramp"} <= set(v):
+            continue
+        z = (v["f_kin"] + v.get("f_static_excess", 0.0)) / v["k"]
+        if not 0.0 <= z < stroke_mm:
+            continue  # never slips: the whole loading is seen
+        t_load = v["ramp"] / np.pi * np.arccos(1.0 - 2.0 * z / stroke_mm)
+        if t_load < MIN_LOADING_SAMPLES * dt:
+            f["k"] = f"loads within {t_load / dt:.1f} samples (a lower bound)"
 
 
 #: Bound on the AR(1) coefficient of the residuals (keeps ``log(1 - rho^2)`` finite).
