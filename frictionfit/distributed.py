@@ -9,9 +9,10 @@ the per-chunk results are concatenated back in trial order;
 
 A trial's result does not depend on the chunk it lands in, so the fit and the
 Laplace posterior equal the local ones up to rounding (a different batch shape
-can change XLA's vectorisation in the last bit). Two exceptions draw random
-numbers per batch, so a chunk gets other, equally distributed draws: the jittered
-starts of ``n_starts > 1`` and emcee's walkers.
+can change XLA's vectorisation in the last bit); the jittered starts of
+``n_starts > 1`` are seeded per trial, from its own samples. emcee's walkers are
+the exception: they are drawn per chunk, so a chunk gets other, equally
+distributed draws from the same posterior.
 
 ``scheduler`` is a ``distributed.Client`` or a scheduler address
 (``"tcp://host:8786"``); a client made from an address is closed afterwards.
