@@ -4,9 +4,10 @@
 data it was fitted to and returns a :class:`Posterior` per trial, by one of
 
 - ``"laplace"``: a Gaussian at the posterior mode (fast; one Jacobian per trial);
-- ``"emcee"``: an affine-invariant ensemble (emcee, ``vectorize=True``), every
-  trial's walkers evaluated in one batched JAX call per lockstep round, run
-  until the chain is >= 50 integrated autocorrelation times long;
+- ``"emcee"``: an emcee ensemble (``vectorize=True``), every trial's walkers
+  evaluated in one batched JAX call per lockstep round, in log coordinates with
+  an adaptive independence proposal (pilot-fitted; see ``_ensemble``), run until
+  the chain is >= 50 integrated autocorrelation times long;
 - ``"auto"`` (default): Laplace, except emcee for the trials where Laplace is
   not to be trusted: the fit did not end ``CONVERGED`` (e.g. ill-conditioned),
   a parameter is flagged "at bound" or "singular" by the fit, the Hessian's
