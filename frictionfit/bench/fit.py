@@ -166,12 +166,14 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     The full run fits 256 trials of the default model (``relaxation``: 2-s
     single-channel trials at 1 kHz, 20 dB) with pools of 128, and 8 trials with each
     peer (the NumPy peer takes seconds per trial); then a grid of configurations.
-    ``quick=True`` (a smoke test, for tests) fits 4 ``elastic_plastic`` trials and 1
-    per peer, without the grid. Timings are medians of interleaved repetitions;
-    ``compile_s`` is the first call of ours minus a steady one.
+    ``quick=True`` fits 64 ``elastic_plastic`` trials in pools of 32 (a batch big
+    enough for batching to count: with 4 trials in a pool of 4 the comparison with
+    scipy-jax measured per-call overhead, 1.1x) and 4 per peer, without the grid;
+    under a minute on this machine. Timings are medians of interleaved
+    repetitions; ``compile_s`` is the first call of ours minus a steady one.
     """
     if quick:
-        return measure("elastic_plastic", 4, 1, 4, 1, grid=False, seed=seed)
+        return measure("elastic_plastic", 64, 4, 32, 1, grid=False, seed=seed)
     return measure(DEFAULT_MODEL, 256, 8, 128, 2, grid=True, seed=seed)
 
 
@@ -202,6 +204,7 @@ def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,
                      runs[k]["result"], sets[k]) for k in runs]
     if grid:
         points += _configs(seed, pool)
+        points += _solve_configs(seed, pool)
     summary = {
         "model": name, "n_trials": n, "n_trials_peers": n_peer,
         "trials_per_s": 1.0 / per_trial["ours"],
@@ -245,6 +248,48 @@ def _configs(seed: int, pool: int) -> list[dict]:
         points.append(_point(f"{solver} {name} ftol={ftol:g} chunk={min(chunk, n)} float64",
                              seconds, n, get_model(name), result, ts))
     return points
+
+
+def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[dict]:
+    """The LM solve alone (no statistics) in float64 and float32, with 1 and 2 host threads.
+
+    Alternated, median of ``reps``; the data-driven start, the default model, pools
+    of ``n // 4`` (at most ``pool``) so that each of two threads has full pools. float32
+    runs the same code on float32 data (frictionfit's default stays float64); a
+    trial counts as a success when it converged with finite parameters.
+    """
+    from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
+    from frictionfit.fit._problem import normal_fn
+
+    ts = simulate_trials(DEFAULT_MODEL, n, seed=seed + 2)
+    model = get_model(DEFAULT_MODEL)
+    times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
+    u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
+    free = tuple(range(model.n_params))
+    dt = ts.t[1] - ts.t[0]
+    chunk = max(min(pool, n // 4), 4)  # two threads each get two full pools
+
+    def call(dtype, threads):
+        data = (ts.y.astype(dtype), np.isfinite(ts.y), tuple(a.astype(dtype) for a in times),
+                ts.direction.astype(dtype), np.full(n, ts.t[0], dtype), np.full(n, dt, dtype),
+                u0.astype(dtype))
+        cfg = LMConfig()
+
+        def solve():
+            u, code, _ = solve_pool(normal_fn(model, free), u0.astype(dtype), data, cfg,
+                                    chunk, threads=threads)
+            ok = (code == CONVERGED) & np.all(np.isfinite(u), axis=1)
+            return u.astype(np.float64), ok
+
+        return solve
+
+    calls = {f"lm-solve {DEFAULT_MODEL} {name} threads={th}": call(dtype, th)
+             for name, dtype in (("float64", np.float64), ("float32", np.float32))
+             for th in (1, 2)}
+    runs = alternate(calls, repeats=reps, warmup=True)
+    return [dict(_point(name, r["median_s"], n, model, r["result"], ts),
+                 compile_s=max(r["warmup_s"] - r["median_s"], 0.0), load_average=_load())
+            for name, r in runs.items()]
 
 
 def _load() -> float | None:
