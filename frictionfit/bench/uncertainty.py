@@ -70,7 +70,8 @@ def _one_by_one(ts, fit, seed: int, **kw) -> SimpleNamespace:
         posts.append(sample_posterior(sub, ts.y[i:i + 1], ts.t, (ts.t_out, ts.t_back),
                                       method="emcee", seed=seed + i, **kw))
     return SimpleNamespace(**{k: [getattr(p, k)[0] for p in posts]
-                              for k in ("quantiles", "converged", "method", "tau")})
+                              for k in ("quantiles", "sd", "converged", "method", "tau",
+                                        "chains")})
 
 
 def _interval_error(post, ref) -> float:
