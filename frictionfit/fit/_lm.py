@@ -147,14 +147,15 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
     (``CONVERGED``, ``NONFINITE``, ``MAX_STEPS``) and the iterations used.
 
     ``threads``: host threads, each running its own pool on a contiguous share of
-    the trials (at most one per full pool: ``n // pool_size``). XLA runs one jitted
-    while-loop of this size on about one core and JAX releases the GIL while it
-    runs, so pools in two threads can use two cores.
+    the trials (at most one per full pool: ``n // pool_size``), thread ``i`` on
+    JAX device ``i`` (mod the device count; several CPU devices need
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` before JAX starts).
     Each trial's result does not depend on its pool's other trials, so the split
-    does not change results (checked bit for bit on 256 trials). Default 1:
-    measured on this 2-core machine under a load of ~15, two threads were slower
-    (18.7 s against 14.8 s wall for 256 trials, 9.3 s against 7.3 s CPU); the
-    benchmark measures both (``frictionfit bench fit``).
+    does not change results (bit for bit, tested). Default 1, because nothing
+    faster was measured on this shared 2-core machine (256 relaxation trials,
+    pools of 128, alternated, median of 3): one CPU device, load ~8: 2 threads
+    11.4 s wall against 8.3 s (the executions serialise on the one device: CPU
+    time = wall time); two host devices, load ~9: 20.5 s against 11.1 s.
     """
     n = u0.shape[0]
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
@@ -162,15 +163,18 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
         return _solve_serial(normal, u0, data, cfg, pool_size)
     bounds = np.linspace(0, n, threads + 1).astype(int)
     shares = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    devices = jax.local_devices()
     with ThreadPoolExecutor(max_workers=threads) as ex:
-        parts = list(ex.map(lambda sl: _solve_serial(
-            normal, u0[sl], jax.tree_util.tree_map(lambda a: a[sl], data), cfg, pool_size),
-            shares))
+        parts = list(ex.map(lambda i: _solve_serial(
+            normal, u0[shares[i]], jax.tree_util.tree_map(lambda a: a[shares[i]], data), cfg,
+            pool_size, devices[i % len(devices)]), range(threads)))
     return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
 
 
-def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size: int):
-    """:func:`solve_pool` in the calling thread: one pool, refilled from the queue."""
+def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size: int,
+                  device=None):
+    """:func:`solve_pool` in the calling thread: one pool, refilled from the queue, on
+    ``device`` (default: JAX's default device)."""
     n, p = u0.shape
     dtype = u0.dtype
     u_out = u0.copy()
@@ -207,7 +211,8 @@ def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_si
             pool = jax.tree_util.tree_map(lambda a, k=keep: a[k], pool)
             slot_data = jax.tree_util.tree_map(lambda a, k=keep: a[k], slot_data)
             owner = owner[keep]
-        pool = jax.tree_util.tree_map(np.array, seg(pool, slot_data))
+        args = (pool, slot_data) if device is None else jax.device_put((pool, slot_data), device)
+        pool = jax.tree_util.tree_map(np.array, seg(*args))
         finished = np.flatnonzero((owner >= 0) & (pool.code != RUNNING))
         trials = owner[finished]
         u_out[trials] = np.where(np.isfinite(pool.cost[finished])[:, None],
