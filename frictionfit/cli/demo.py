@@ -32,16 +32,16 @@ def _classify(recs: list, fitted: bool) -> None:
     from frictionfit.simulation.measurements import simulate_measurements
 
     classes = sorted({str(r.label) for r in recs})
-    train = simulate_measurements([(s, c, t) for s in (2, 3) for c in classes for t in (1, 2)],
-                                  SAMPLE["seed"])
+    specs = [(s, c, t) for s in (2, 3) for c in classes for t in range(1, 5)]
+    train = simulate_measurements(specs, SAMPLE["seed"])
     kind = "fitted + measured" if fitted else "measured"
-    project = projection_for(train)
-    projection = "LDA projection + " if project else ""
-    typer.echo(f"\nclassification: physical features ({kind}), {projection}RBF SVM, trained on "
-               f"{len(train)} simulated measurements of sessions 2-3")
     pipe = make_pipeline("physical", "svm-ovo", normalise_by=None, fitted=fitted,
-                         project=project)
+                         project=projection_for(train))
     predicted = pipe.fit(train, labels_of(train)).predict(recs)
+    projected = "project" in pipe.named_steps and pipe.named_steps["project"].lda_ is not None
+    typer.echo(f"\nclassification: physical features ({kind}), "
+               f"{'LDA projection + ' if projected else ''}RBF SVM, trained on "
+               f"{len(train)} simulated measurements of sessions 2-3")
     for rec, label in zip(recs, predicted, strict=True):
         verdict = "ok" if label == rec.label else "WRONG"
         typer.echo(f"  {rec.name:24s} predicted {label:18s} {verdict}")
