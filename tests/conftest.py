@@ -22,6 +22,14 @@ def pytest_configure(config):
     jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
+@pytest.fixture(scope="module")
+def feature_cache(tmp_path_factory):
+    """An empty feature cache (``FRICTIONFIT_CACHE``) for one test module: no stale rows."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FRICTIONFIT_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261122)

@@ -21,6 +21,8 @@ from frictionfit.errors import DatasetError
 from frictionfit.features.handcrafted import HandcraftedFeatures
 from frictionfit.recording import Event, Recording
 
+pytestmark = pytest.mark.usefixtures("feature_cache")
+
 CHANNELS = ("thumb_x", "thumb_y", "index_x", "index_y")
 
 
@@ -46,13 +48,6 @@ def synthetic(label: int, session: int, trial: int, n_labels: int = 3) -> Record
         samples, 1000.0, CHANNELS, events=events, name=f"s{session}_c{label}_{trial:02d}",
         metadata={"label": f"c{label}", "session": session, "trial": trial,
                   "layers": 1 + label % 2})
-
-
-@pytest.fixture(scope="module", autouse=True)
-def feature_cache(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FRICTIONFIT_CACHE", str(tmp_path_factory.mktemp("cache")))
-        yield
 
 
 @pytest.fixture(scope="module")

@@ -11,15 +11,10 @@ from frictionfit.cli import app
 from frictionfit.recording import write_recording
 from frictionfit.simulation.measurements import simulate_measurements
 
+pytestmark = pytest.mark.usefixtures("feature_cache")
+
 runner = CliRunner()
 LABELS = ("paper-1", "carpet-2", "belt-1")
-
-
-@pytest.fixture(scope="module", autouse=True)
-def feature_cache(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FRICTIONFIT_CACHE", str(tmp_path_factory.mktemp("cache")))
-        yield
 
 
 @pytest.fixture(scope="module")
