@@ -137,9 +137,9 @@ def projection_for(recordings: Sequence[Recording], project: str | None = "auto"
     which the LDA projection learns to discount. On the lab stand-in (sessions 1-3,
     leave-one-session-out, RBF SVM) it lifts physical features from 0.762 to 0.940
     and hand-crafted ones from 0.850 to 0.898. Without sessions (FabricSlide slides,
-    touch gestures) it is left out: on FabricSlide it lowers physical features
-    from 0.898 to 0.809 across pressures, because the within-class scatter of the
-    training pressures does not describe a new pressure.
+    touch gestures) it is left out: on FabricSlide (measured with plain LDA) it
+    lowers physical features from 0.898 to 0.809 across pressures, because the
+    within-class scatter of the training pressures does not describe a new pressure.
     """
     if project != "auto":
         if project not in PROJECTIONS:
