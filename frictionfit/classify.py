@@ -125,7 +125,8 @@ def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, se
     if project == "lda":
         steps.append(("project", DiscriminantProjection()))
     elif project is not None:
-        raise ValueError(f"unknown projection {project!r}; choose from {PROJECTIONS}")
+        raise ValueError(f"unknown projection {project!r}; choose 'lda' or None "
+                         f"(projection_for resolves 'auto' for a dataset)")
     return Pipeline([*steps, ("classifier", make_classifier(classifier, seed=seed))])
 
 

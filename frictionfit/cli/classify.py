@@ -108,8 +108,7 @@ def train(
 
 
 def _projection(name: str) -> str | None:
-    if name not in ("auto", "lda", "none"):
-        _fail(f"unknown projection {name!r}; choose auto, lda or none")
+    """The ``--project`` name as ``projection_for`` takes it (which refuses unknown names)."""
     return None if name == "none" else name
 
 
@@ -181,10 +180,9 @@ def evaluate(
     from frictionfit.classify import evaluate as run
     from frictionfit.errors import FrictionfitError
 
-    projection = _projection(project)
     recordings = _load(dataset)
     try:
-        projection = projection_for(recordings, projection)
+        projection = projection_for(recordings, _projection(project))
     except ValueError as exc:
         _fail(str(exc))
     if all_:
