@@ -49,7 +49,7 @@ def test_result_does_not_depend_on_chunk_size(four):
 def test_threads_do_not_change_results():
     from frictionfit.fit import initial_guess
     from frictionfit.fit._lm import LMConfig, solve_pool
-    from frictionfit.fit._problem import normal_fn
+    from frictionfit.fit._problem import noise_scale, normal_fn
     from frictionfit.models import get_model
 
     ts = known_truth(EP, 8, seed=5)
@@ -58,7 +58,7 @@ def test_threads_do_not_change_results():
     times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
     u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
     data = (ts.y, np.isfinite(ts.y), times, ts.direction, np.full(n, ts.t[0]),
-            np.full(n, ts.t[1] - ts.t[0]), u0)
+            np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, np.isfinite(ts.y)))
     normal = normal_fn(model, tuple(range(model.n_params)))
     one = solve_pool(normal, u0, data, LMConfig(), 4, threads=1)
     two = solve_pool(normal, u0, data, LMConfig(), 4, threads=2)  # two pools of 4, in threads
@@ -70,15 +70,21 @@ def test_at_least_as_good_as_scipy_lm(four):
     import jax.numpy as jnp
     from scipy.optimize import least_squares
 
+    from frictionfit.fit._problem import noise_scale
     from frictionfit.models import get_model
 
     ts, res = four
     model = get_model(EP)
-    # scipy's LM from our optimum must find no meaningfully lower cost (reference twin).
+    noise = noise_scale(ts.y, np.isfinite(ts.y))
+    # scipy's LM from our optimum must find no meaningfully lower cost of the same
+    # objective: data residuals and the prior rows (reference twin).
     for i in range(2):
         def r(u, i=i):
-            return np.asarray(model.predict(jnp.asarray(u), jnp.asarray(ts.t),
-                                            (ts.t_out, ts.t_back), ts.direction[i]) - ts.y[i])
+            u = jnp.asarray(u)
+            data = model.predict(u, jnp.asarray(ts.t), (ts.t_out, ts.t_back),
+                                 ts.direction[i]) - ts.y[i]
+            return np.concatenate([np.asarray(data),
+                                   noise[i] * np.asarray(model.prior_residuals(u))])
 
         sol = least_squares(r, res.u[i], method="lm")
         assert np.sum(r(res.u[i]) ** 2) <= 2 * sol.cost * (1 + 1e-5)

@@ -23,7 +23,8 @@ import numpy as np
 from frictionfit.bench._timing import alternate, machine_info, timed
 from frictionfit.errors import Status
 from frictionfit.fit import fit_trials, initial_guess
-from frictionfit.models import FAMILY, ContactModel, get_model
+from frictionfit.fit._problem import noise_scale
+from frictionfit.models import FAMILY, PARAMS, ContactModel, get_model
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
 __all__ = ["IDENTIFIABLE", "measure", "numpy_predict", "run"]
@@ -122,21 +123,28 @@ def _peers(model: ContactModel, ts: TrialSet, u0: np.ndarray):
 
     t = ts.t
     tj = jnp.asarray(t)
+    noise = noise_scale(ts.y, np.isfinite(ts.y))
+    priors = [(model.param_names.index(n), *PARAMS[n].prior_in_sampling(p))
+              for n, p in model.prior_table.items()]
 
-    def np_resid(x, i):
-        return numpy_predict(model, x, t, ts.t_out, ts.t_back, ts.direction[i]) - ts.y[i]
+    def np_resid(x, i):  # the same objective as ours: data residuals, then prior rows
+        data = numpy_predict(model, x, t, ts.t_out, ts.t_back, ts.direction[i]) - ts.y[i]
+        rows = [noise[i] * (model.params[j].to_sampling(np.float64(x[j])) - centre) / sd
+                for j, centre, sd in priors]
+        return np.concatenate([data, rows])
 
-    def jax_resid(x, y, d):
-        return model.predict(x, tj, (ts.t_out, ts.t_back), d) - y
+    def jax_resid(x, y, d, s):
+        data = model.predict(x, tj, (ts.t_out, ts.t_back), d) - y
+        return jnp.concatenate([data, s * model.prior_residuals(x)])
 
     jres = jax.jit(jax_resid)
     jjac = jax.jit(jax.jacfwd(jax_resid))
 
     def j_resid(x, i):
-        return np.asarray(jres(x, ts.y[i], ts.direction[i]))
+        return np.asarray(jres(x, ts.y[i], ts.direction[i], noise[i]))
 
     def j_jac(x, i):
-        return np.asarray(jjac(x, ts.y[i], ts.direction[i]))
+        return np.asarray(jjac(x, ts.y[i], ts.direction[i], noise[i]))
 
     return (lambda: _scipy_fits(model, ts, u0, np_resid, None),
             lambda: _scipy_fits(model, ts, u0, j_resid, j_jac))
@@ -272,7 +280,7 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
     def call(dtype, threads):
         data = (ts.y.astype(dtype), np.isfinite(ts.y), tuple(a.astype(dtype) for a in times),
                 ts.direction.astype(dtype), np.full(n, ts.t[0], dtype), np.full(n, dt, dtype),
-                u0.astype(dtype))
+                u0.astype(dtype), noise_scale(ts.y, np.isfinite(ts.y)).astype(dtype))
         cfg = LMConfig()
 
         def solve():

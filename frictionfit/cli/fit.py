@@ -26,6 +26,10 @@ def fit(
     seed: int = typer.Option(0, help="Seed of the multi-start jitter."),
     fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
                                   "(repeatable), e.g. --fix tau=0.1."),
+    prior: list[str] = typer.Option([], help="NAME=CENTRE,SD: a Normal prior (repeatable); for "
+                                    "a log-scale parameter CENTRE is the median and SD that of "
+                                    "its log, e.g. --prior ramp=0.15,0.3 (default ramp=0.125,0.3"
+                                    "); NAME=none: flat over its bounds."),
     tie: list[str] = typer.Option([], help="NAME: share a parameter across the channels of "
                                   "each motion (repeatable)."),
     scheduler: str = typer.Option(None, help="Dask scheduler address (e.g. tcp://host:8786): "
@@ -51,6 +55,7 @@ def fit(
     except ValueError:
         raise typer.BadParameter(f"{fix}: write NAME=VALUE, e.g. tau=0.1",
                                  param_hint="--fix") from None
+    priors = _priors(prior)
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
     ys, t_outs, t_backs, ids, groups, t = [], [], [], [], [], None
     for f in files:
@@ -77,7 +82,7 @@ def fit(
     typer.echo(f"fitting {len(ys)} trials ({len(files)} recordings), model={model} ...")
     y, drive_input = np.asarray(ys), (np.asarray(t_outs), np.asarray(t_backs))
     options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
-                   fix=fixed, tie=tie, groups=np.asarray(groups))
+                   fix=fixed, tie=tie, groups=np.asarray(groups), priors=priors)
     try:
         if scheduler:
             from frictionfit.distributed import fit_distributed
@@ -118,3 +123,21 @@ def _posterior(result, y, t, drive_input, method: str, chains: Path | None, sche
     from frictionfit.uncertainty import sample_posterior
 
     return sample_posterior(result, y, t, drive_input, method=method, chains_path=chains)
+
+
+def _priors(items: list[str]) -> dict | None:
+    """``--prior`` values as ``fit_trials(priors=...)``: name -> (centre, sd) or None."""
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            out[name] = None if value.strip().lower() == "none" else tuple(
+                float(v) for v in value.split(","))
+            if out[name] is not None and len(out[name]) != 2:
+                raise ValueError
+        except ValueError:
+            raise typer.BadParameter(f"{item!r}: write NAME=CENTRE,SD or NAME=none, e.g. "
+                                     "ramp=0.15,0.3", param_hint="--prior") from None
+    return out

@@ -19,7 +19,7 @@ from frictionfit.fit._guess import (
 )
 from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
 from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
-from frictionfit.fit._problem import jacobian_fn, normal_fn
+from frictionfit.fit._problem import jacobian_fn, noise_scale, normal_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult
 from frictionfit.models import FAMILY, PARAMS, get_model
@@ -81,7 +81,7 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
     for name, value in fixed.items():
         if name in names:
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
-    data = (*data, base)
+    data = (*data, base, opts["noise"])
     starts = multi_starts(model, base, opts["n_starts"], opts["seed"], keys=opts["keys"])
     if extra_starts is not None:
         extra = np.array(extra_starts, dtype=np.float64)
@@ -143,6 +143,7 @@ def fit_trials(
     tie: Sequence[str] = (),
     groups=None,
     stroke_mm: float = 1.0,
+    priors: Mapping[str, tuple[float, float] | None] | None = None,
 ) -> FitResult:
     """Fit a contact model to every trial of a batch.
 
@@ -188,6 +189,12 @@ def fit_trials(
         reports that mean and its combined stderr, flagged "tied".
     stroke_mm : float
         The rig's finger stroke (mm) for ``drive="events"``; stiffness is per mm of it.
+    priors : mapping name -> (centre, sd) or None, optional
+        Normal priors on parameters' sampling coordinates (for a ``loglogit``
+        parameter: median in its unit and sd of the natural log), replacing the
+        defaults (:data:`~frictionfit.models.family.RAMP_PRIOR` on ``ramp``);
+        ``None`` for a name makes it flat over its bounds. The fit is then the MAP
+        estimate; chi-square, AIC and BIC are of the data alone.
 
     Returns
     -------
@@ -241,9 +248,13 @@ def fit_trials(
     opts = dict(solver=solver, rtol=rtol, atol=atol, ftol=ftol, max_steps=max_steps,
                 steps_per_round=steps_per_round, chunk_size=chunk_size,
                 n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
-                saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm)
+                saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm,
+                noise=noise_scale(y_clean, mask))
     names = [m.name for m in FAMILY] if model == "auto" else [model]
-    members = [get_model(n, drive=drive, stroke_mm=stroke_mm) for n in names]
+    try:
+        members = [get_model(n, drive=drive, stroke_mm=stroke_mm, priors=priors) for n in names]
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
     fits, previous = {}, None
     for member in members:
         start_u = np.array(u0 if (u0 is not None and model != "auto") else initial_guess(
@@ -290,6 +301,7 @@ def fit_trials(
         bic_table=bic if model == "auto" else None, wall_s=time.perf_counter() - start,
         solver=solver, n_starts=opts["n_starts"], direction=direction,
         drive_input=drive_input, drive=drive, stroke_mm=stroke_mm,
+        priors=dict(priors) if priors is not None else None,
     )
 
 

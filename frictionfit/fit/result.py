@@ -38,8 +38,9 @@ class FitResult:
         Wall time of the whole batch, s.
     solver : str
         The solver used; ``n_starts`` the number of starting points per trial.
-    direction, drive_input, drive, stroke_mm
-        What :meth:`predict` needs to recompute a trial's fitted curve.
+    direction, drive_input, drive, stroke_mm, priors
+        What :meth:`predict` needs to recompute a trial's fitted curve, and the
+        ``priors=`` the fit was given (``None``: the parameters' defaults).
     """
 
     model: list[str]
@@ -63,6 +64,7 @@ class FitResult:
     drive_input: object = field(default=None, repr=False)
     drive: str = "events"
     stroke_mm: float = 1.0
+    priors: dict | None = None
 
     @property
     def n_trials(self) -> int:
@@ -89,17 +91,22 @@ class FitResult:
         """The fitted force (N) of trial ``i`` at uniform times ``t`` (s)."""
         import jax.numpy as jnp
 
-        from frictionfit.models import get_model
-
         if self.direction is None or self.drive_input is None:
             raise ValueError("this FitResult does not carry its drive; refit with fit_trials")
-        member = get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm)
+        member = self.member(i)
         if self.drive == "events":
             drive_i = (self.drive_input[0][i], self.drive_input[1][i])
         else:
             drive_i = jnp.asarray(self.drive_input[i])
         return np.asarray(member.predict(jnp.asarray(self.u[i]), jnp.asarray(t), drive_i,
                                          self.direction[i]))
+
+    def member(self, i: int):
+        """Trial ``i``'s :class:`~frictionfit.models.ContactModel`, with drive and priors."""
+        from frictionfit.models import get_model
+
+        return get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm,
+                         priors=self.priors)
 
     def identifiable(self, i: int) -> dict[str, float]:
         """The parameters of trial ``i`` reported with confidence (no flag), physical units."""
@@ -130,6 +137,14 @@ def fit_report(result: FitResult, i: int = 0) -> str:
         warn = (f"  ({flag})" if flag in ("fixed", "tied")
                 else f"  <-- not identifiable: {flag}" if flag else "")
         lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{warn}")
+    priors = result.member(i).prior_table
+    if priors:
+        lines.append("[[Priors]] (Normal on the log of loglogit parameters; the fit is MAP)")
+        for name, (centre, sd) in priors.items():
+            kind = "median" if PARAMS[name].transform == "loglogit" else "mean"
+            sd_of = "log sd" if PARAMS[name].transform == "loglogit" else "sd"
+            unit = PARAMS[name].unit
+            lines.append(f"    {name:16s} {kind} {centre:.6g} {unit}, {sd_of} {sd:.3g}")
     if result.bic_table is not None:
         lines.append("[[BIC by model]]")
         for name, b in result.bic_table.iloc[i].items():

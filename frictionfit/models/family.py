@@ -16,12 +16,23 @@ until the slider slips).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import equinox as eqx
+import jax.numpy as jnp
 
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force, drive
 
 __all__ = ["FAMILY", "PARAMS", "ContactModel", "get_model"]
+
+#: Prior of the movement duration ``ramp``: median 0.125 s, sd 0.3 of its log (95 % within
+#: 0.07-0.22 s). The rig's motor moves the 1 mm stroke in 100-150 ms (rubbing-lab README;
+#: segmentation measured 125-221 ms, p5-p95, on the lab stand-in). Without it the trial's
+#: onset only fixes ``k / ramp**2`` and ``slip_length * ramp**2``: a ridge along which the
+#: fit wandered (median error of k 60 %, of ramp 39 % on 256 simulated trials; 25 % / 14 %
+#: with a prior) and the LM crawled. Override per fit (``priors=``, ``--prior``).
+RAMP_PRIOR = (0.125, 0.3)
 
 #: Every parameter of the family, defined once: name, unit, bounds, transform, default.
 PARAMS: dict[str, Param] = {
@@ -31,7 +42,8 @@ PARAMS: dict[str, Param] = {
         Param("k", "N/mm", 1e-3, 1e4, 5.0, "loglogit", "tangential contact stiffness"),
         Param("f_kin", "N", 1e-5, 1e3, 0.5, "loglogit", "kinetic friction level"),
         Param("delay", "s", 0.0, 0.3, 0.02, "logit", "motor latency after the command"),
-        Param("ramp", "s", 0.005, 1.0, 0.12, "loglogit", "duration of the finger movement"),
+        Param("ramp", "s", 0.005, 1.0, 0.12, "loglogit", "duration of the finger movement",
+              prior=RAMP_PRIOR),
         Param("f_static_excess", "N", 1e-5, 1e3, 0.1, "loglogit",
               "static minus kinetic friction level"),
         Param("slip_length", "mm", 1e-4, 10.0, 0.05, "loglogit",
@@ -53,7 +65,10 @@ class ContactModel(eqx.Module):
     ``drive="events"`` builds the finger displacement from the two ``move``
     command times and fits the motor's ``delay`` and ``ramp`` as nuisance
     parameters; ``drive="given"`` takes a known displacement (mm) per sample
-    (e.g. a constant-velocity slide) and adds no parameters.
+    (e.g. a constant-velocity slide) and adds no parameters. ``priors``:
+    ``(name, centre, sd)`` of the Normal priors on the sampling coordinates of
+    this member's parameters (see :class:`~frictionfit.models.params.Param`);
+    the default is each parameter's own ``prior``.
 
     Examples
     --------
@@ -68,13 +83,48 @@ class ContactModel(eqx.Module):
     law_names: tuple[str, ...] = eqx.field(static=True)
     drive: str = eqx.field(static=True, default="events")
     stroke_mm: float = eqx.field(static=True, default=1.0)
+    priors: tuple[tuple[str, float, float], ...] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.drive not in ("events", "given"):
             raise ValueError(f"drive must be 'events' or 'given', not {self.drive!r}")
 
     def with_drive(self, drive: str, stroke_mm: float = 1.0) -> ContactModel:
-        return ContactModel(self.name, self.law_names, drive, stroke_mm)
+        return ContactModel(self.name, self.law_names, drive, stroke_mm, self.priors)
+
+    def with_priors(self, priors: Mapping[str, tuple[float, float] | None] | None = None
+                    ) -> ContactModel:
+        """This member with each parameter's default prior, updated by ``priors``
+        (name -> ``(centre, sd)``, or ``None`` for flat); unknown names raise."""
+        table = {p.name: p.prior for p in self.params}
+        for name, prior in (priors or {}).items():
+            if name not in PARAMS:
+                raise ValueError(f"no parameter {name!r} to put a prior on; "
+                                 f"parameters are {list(PARAMS)}")
+            if name in table:
+                table[name] = None if prior is None else PARAMS[name].check_prior(prior)
+        chosen = tuple((n, *p) for n, p in table.items() if p is not None)
+        return ContactModel(self.name, self.law_names, self.drive, self.stroke_mm, chosen)
+
+    @property
+    def prior_table(self) -> dict[str, tuple[float, float]]:
+        """Name -> ``(centre, sd)`` of the priors in force (defaults when never set)."""
+        if self.priors is None:
+            return {p.name: p.prior for p in self.params if p.prior is not None}
+        return {n: (c, sd) for n, c, sd in self.priors if n in self.param_names}
+
+    def prior_residuals(self, u, sampling: bool = False):
+        """``(x_j - centre_j) / sd_j`` per prior, shape ``(..., n_priors)``, where ``x_j`` is
+        the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``)."""
+        rows = []
+        for name, prior in self.prior_table.items():
+            par = PARAMS[name]
+            centre, sd = par.prior_in_sampling(prior)
+            x = u[..., self.param_names.index(name)]
+            rows.append(((x if sampling else par.to_sampling(x)) - centre) / sd)
+        if not rows:
+            return jnp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
+        return jnp.stack(rows, axis=-1)
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -122,9 +172,12 @@ _LAWS = {
 FAMILY: tuple[ContactModel, ...] = tuple(ContactModel(n, laws) for n, laws in _LAWS.items())
 
 
-def get_model(name: str, drive: str = "events", stroke_mm: float = 1.0) -> ContactModel:
-    """The family member called ``name``, with the given drive."""
+def get_model(name: str, drive: str = "events", stroke_mm: float = 1.0,
+              priors: Mapping[str, tuple[float, float] | None] | None = None) -> ContactModel:
+    """The family member called ``name``, with the given drive and priors (see
+    :meth:`ContactModel.with_priors`; ``None``: the parameters' default priors)."""
     for m in FAMILY:
         if m.name == name:
-            return m.with_drive(drive, stroke_mm)
+            m = m.with_drive(drive, stroke_mm)
+            return m if priors is None else m.with_priors(priors)
     raise ValueError(f"unknown model {name!r}; choose from {[m.name for m in FAMILY]} or 'auto'")

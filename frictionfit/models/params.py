@@ -3,6 +3,9 @@
 Fits run in an unconstrained coordinate ``u`` and report the physical value:
 ``"identity"`` (offsets), ``"logit"`` (bounded, linear scale) or ``"loglogit"``
 (bounded, log scale, for quantities spanning decades such as stiffness or tau).
+A parameter may carry a weakly informative Normal prior on its *sampling
+coordinate* (the log of a ``loglogit`` value, the value otherwise): the fit
+minimises it with the data (a MAP estimate) and the posterior includes it.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ class Param:
     default: float
     transform: str = "loglogit"
     doc: str = ""
+    #: ``(centre, sd)`` in the unit: median and sd of the natural log for ``loglogit``,
+    #: mean and sd of the value otherwise; ``None``: flat over the bounds.
+    prior: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.transform not in ("identity", "logit", "loglogit"):
@@ -34,6 +40,31 @@ class Param:
             raise ValueError(f"{self.name}: default {self.default} not inside bounds")
         if self.transform == "loglogit" and self.lower <= 0:
             raise ValueError(f"{self.name}: loglogit needs a positive lower bound")
+        if self.prior is not None:
+            self.check_prior(self.prior)
+
+    def check_prior(self, prior: tuple[float, float]) -> tuple[float, float]:
+        """``prior`` as floats; ValueError for a centre outside the bounds or sd <= 0."""
+        centre, sd = (float(v) for v in prior)
+        inside = self.transform == "identity" or self.lower < centre < self.upper
+        if not (inside and np.isfinite(centre) and sd > 0 and np.isfinite(sd)):
+            raise ValueError(f"{self.name}: prior {prior!r} needs a centre inside "
+                             f"({self.lower:g}, {self.upper:g}) {self.unit} and a positive sd")
+        return centre, sd
+
+    def prior_in_sampling(self, prior: tuple[float, float]) -> tuple[float, float]:
+        """Centre and sd of ``prior`` on the sampling coordinate (log value for ``loglogit``)."""
+        centre, sd = self.check_prior(prior)
+        return (float(np.log(centre)) if self.transform == "loglogit" else centre), sd
+
+    def to_sampling(self, u):
+        """Sampling coordinate of unconstrained ``u``: the log value (``loglogit``), the
+        value otherwise, without the clip of :meth:`to_physical` (smooth everywhere)."""
+        if self.transform == "identity":
+            return u
+        xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
+        lo, hi = self._span(xp)
+        return lo + (hi - lo) * 0.5 * (1.0 + xp.tanh(0.5 * u))  # the logistic, without overflow
 
     def _span(self, xp):
         if self.transform == "loglogit":
@@ -45,8 +76,7 @@ class Param:
         if self.transform == "identity":
             return u
         xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
-        lo, hi = self._span(xp)
-        v = lo + (hi - lo) * 0.5 * (1.0 + xp.tanh(0.5 * u))  # the logistic, without overflow
+        v = self.to_sampling(u)
         if self.transform == "loglogit":  # exp(log(upper)) can overshoot by an ulp
             return xp.clip(xp.exp(v), self.lower, self.upper)
         return v

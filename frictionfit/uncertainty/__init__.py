@@ -211,7 +211,8 @@ def sample_posterior(
                quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
                acceptance=np.full(n, np.nan), chains=[None] * n)
     for name in dict.fromkeys(fit.model):
-        model = get_model(name, stroke_mm=getattr(fit, "stroke_mm", 1.0))
+        model = get_model(name, stroke_mm=getattr(fit, "stroke_mm", 1.0),
+                          priors=getattr(fit, "priors", None))
         nan = {p: np.nan for p in model.param_names}
         rows = np.array([i for i in range(n) if fit.model[i] == name])
         for i in rows:

@@ -11,7 +11,9 @@ Priors (weakly informative, from each parameter's physical bounds): a bounded
 parameter's unconstrained ``u`` has a standard logistic density, i.e. the
 physical value is uniform over its bounds (``logit``) or log-uniform over them
 (``loglogit``: stiffness, friction levels, lengths and times span decades).
-Offsets (``identity``) get a Normal(0, ``OFFSET_PRIOR_SD_N``) prior. A NaN or
+Offsets (``identity``) get a Normal(0, ``OFFSET_PRIOR_SD_N``) prior. The model's
+own priors (:meth:`~frictionfit.models.ContactModel.prior_residuals`, e.g. the
+movement duration's) multiply in: the same density the fit's MAP maximises. A NaN or
 infinite log-posterior is mapped to ``-inf`` (the sampler rejects the move).
 
 emcee samples the same posterior in *sampling coordinates* (:func:`to_sampling`):
@@ -51,7 +53,7 @@ def log_prior(model: ContactModel, u):
             total = total - 0.5 * (uj / OFFSET_PRIOR_SD_N) ** 2
         else:  # standard logistic: uniform on the (log-)span of the bounds
             total = total - jax.nn.softplus(uj) - jax.nn.softplus(-uj)
-    return total
+    return total - 0.5 * jnp.sum(model.prior_residuals(u) ** 2, axis=-1)
 
 
 def sampling_bounds(model: ContactModel) -> tuple[np.ndarray, np.ndarray]:
@@ -83,11 +85,13 @@ def from_sampling(model: ContactModel, x, xp=np):
 
 
 def log_prior_sampling(model: ContactModel, x):
-    """Log prior in sampling coordinates: flat inside the bounds, -inf outside."""
+    """Log prior in sampling coordinates: flat inside the bounds (times the model's
+    Normal priors), -inf outside."""
     lo, hi = sampling_bounds(model)
     inside = jnp.all((x > lo) & (x < hi), axis=-1)
     off = np.array([p.transform == "identity" for p in model.params])
     gauss = -0.5 * jnp.sum(jnp.where(off, x / OFFSET_PRIOR_SD_N, 0.0) ** 2, axis=-1)
+    gauss = gauss - 0.5 * jnp.sum(model.prior_residuals(x, sampling=True) ** 2, axis=-1)
     return jnp.where(inside, gauss, -jnp.inf)
 
 

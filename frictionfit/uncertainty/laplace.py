@@ -1,7 +1,7 @@
 """Laplace approximation: a Gaussian at the posterior mode in unconstrained coordinates.
 
-The curvature is the Gauss-Newton Hessian of the AR(1)-whitened residuals plus
-the prior's Hessian; one Gauss-Newton step moves the least-squares optimum to
+The curvature is the Gauss-Newton Hessian of the AR(1)-whitened residuals and of
+the model's Normal prior rows, plus the bounds' logistic prior Hessian; one Gauss-Newton step moves the least-squares optimum to
 the posterior mode (kept only if the log-posterior rises). Intervals are the
 Gaussian's quantiles in ``u`` mapped through each (monotone) parameter
 transform, so physical intervals may be asymmetric.
@@ -27,7 +27,7 @@ __all__ = ["laplace", "profile_disagreement"]
 
 
 def _prior_terms(model: ContactModel, u):
-    """Gradient and Hessian diagonal of the negative log prior."""
+    """Gradient and Hessian diagonal of the negative log of the bounds' logistic prior."""
     grads, hess = [], []
     for j, par in enumerate(model.params):
         if par.transform == "identity":
@@ -50,7 +50,8 @@ def _curvature(model: ContactModel):
         prev = jnp.concatenate([jnp.zeros(1, dtype=r.dtype), r[:-1]])
         innov = jnp.where(prev_ok, r - rho * prev, r)
         sd = jnp.where(prev_ok, sigma * jnp.sqrt(1.0 - rho**2), sigma)
-        return jnp.where(mask, innov / sd, 0.0)
+        # The model's Normal priors are residual rows of their own (Gauss-Newton too).
+        return jnp.concatenate([jnp.where(mask, innov / sd, 0.0), model.prior_residuals(u)])
 
     def one(u, t, y, mask, t_out, t_back, direction, sigma, rho):
         args = (t, y, mask, t_out, t_back, direction, sigma, rho)
