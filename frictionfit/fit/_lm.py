@@ -14,6 +14,14 @@ Between segments the host replaces finished slots by waiting trials, so a slow
 trial never holds the others back, and the pool shrinks (to ``B/4``, ``B/16``)
 when only a tail of slow trials remains.
 
+Damping (Nielsen's rule): an accepted step scales ``lambda`` by
+``max(1/3, 1 - (2 g - 1)^3)``, ``g`` the gain ratio of actual to predicted cost
+decrease, so a step that the linear model predicted well lowers the damping and a
+poor one keeps it; a rejected step multiplies it by :data:`REJECT_GROWTH`. (The
+former fixed factors 0.3 / 4 alternated accepted and rejected steps: 256
+simulated relaxation trials took 16.4 steps on average, 100 at most; now 12.8 /
+60, and stick_slip trials converge in 95 % of 128 instead of 89 %.)
+
 Convergence (per slot, MINPACK-like): an accepted step that lowers the cost by
 less than ``ftol`` relatively while the damping is at most 1 (a near
 Gauss-Newton step, not a tiny damped one), or that moves every unconstrained
@@ -39,6 +47,11 @@ __all__ = ["LMConfig", "solve_pool"]
 #: Per-slot codes returned by :func:`solve_pool`.
 RUNNING, CONVERGED, NONFINITE, MAX_STEPS = 0, 1, 2, 3
 LAMBDA_MAX = 1e10
+#: Damping growth after a rejected step. Each step costs a full Jacobian, accepted or
+#: not, so a rejected step is expensive: growing fast wastes fewer (measured on 128
+#: simulated trials, mean steps for 4 / 10 / 30: relaxation 13.7 / 12.8 / 12.6,
+#: stick_slip 25.5 / 20.7 / 20.8).
+REJECT_GROWTH = 10.0
 
 
 class LMConfig(NamedTuple):
@@ -92,6 +105,10 @@ def _segment_fn(normal: Callable, cfg: LMConfig):
         fresh = jnp.isinf(pool.cost)
         accept = active & finite & (cost_c <= pool.cost)
         decrease = jnp.where(fresh, jnp.inf, pool.cost - cost_c)
+        # Gain ratio: actual over predicted decrease of the step (its linear model).
+        d = pool.cand - pool.u
+        predicted = -(d @ pool.grad + 0.5 * d @ (pool.jtj @ d))
+        gain = jnp.where(predicted > 0, decrease / jnp.maximum(predicted, 1e-300), 0.0)
         small_move = jnp.all(jnp.abs(pool.cand - pool.u) <= cfg.xtol * (1.0 + jnp.abs(pool.u)))
         u = jnp.where(accept, pool.cand, pool.u)
         cost = jnp.where(accept, cost_c, pool.cost)
@@ -99,7 +116,8 @@ def _segment_fn(normal: Callable, cfg: LMConfig):
         grad = jnp.where(accept, grad_c, pool.grad)
         diag = jnp.diagonal(jtj)
         scale = jnp.where(accept, jnp.maximum(pool.scale, diag), pool.scale)
-        lam = jnp.where(accept, jnp.maximum(pool.lam * 0.3, 1e-12), pool.lam * 4.0)
+        shrink = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
+        lam = jnp.where(accept, jnp.maximum(pool.lam * shrink, 1e-12), pool.lam * REJECT_GROWTH)
         lam = jnp.where(accept & fresh, cfg.lambda0, lam)
         # MINPACK gtol: largest cosine between the residual and a Jacobian column.
         cosine = jnp.max(jnp.abs(grad) / jnp.sqrt(jnp.maximum(diag * 2.0 * cost, 1e-300)))
