@@ -1,8 +1,9 @@
 """Laplace approximation: a Gaussian at the posterior mode in unconstrained coordinates.
 
 The curvature is the Gauss-Newton Hessian of the AR(1)-whitened residuals and of
-the model's Normal prior rows, plus the bounds' logistic prior Hessian; one Gauss-Newton step moves the least-squares optimum to
-the posterior mode (kept only if the log-posterior rises). Intervals are the
+the model's Normal prior rows, plus the bounds' logistic prior Hessian; one
+Gauss-Newton step moves the least-squares optimum to the posterior mode (kept
+only if the log-posterior rises). Intervals are the
 Gaussian's quantiles in ``u`` mapped through each (monotone) parameter
 transform, so physical intervals may be asymmetric.
 
