@@ -165,7 +165,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 2  # 2: fits are MAP under the movement-duration prior
+    _version = 3  # 2: MAP under the movement-duration prior; 3: Nielsen damping in the LM
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
