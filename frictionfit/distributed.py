@@ -176,8 +176,9 @@ def _per_trial(value, n_trials: int) -> np.ndarray:
 
 def _fit_chunk(y, t_out, t_back, displacement, direction, u0, groups, *, t, drive, fit_kwargs):
     drive_input = (t_out, t_back) if drive == "events" else displacement
+    # One solver thread per task: the cluster's worker threads already share the cores.
     return fit_trials(y, t, drive_input, drive=drive, direction=direction, u0=u0, groups=groups,
-                      **fit_kwargs)
+                      **{"threads": 1, **fit_kwargs})
 
 
 def fit_distributed(

@@ -169,11 +169,11 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
     JAX device ``i`` (mod the device count; several CPU devices need
     ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` before JAX starts).
     Each trial's result does not depend on its pool's other trials, so the split
-    does not change results (bit for bit, tested). Default 1, because nothing
-    faster was measured on this shared 2-core machine (256 relaxation trials,
-    pools of 128, alternated, median of 3): one CPU device, load ~8: 2 threads
-    11.4 s wall against 8.3 s (the executions serialise on the one device: CPU
-    time = wall time); two host devices, load ~9: 20.5 s against 11.1 s.
+    does not change results (bit for bit, tested). Measured on this 2-core
+    machine, alternated, median of 3: quiet (load 1.9; 128 relaxation trials,
+    pools of 32), 2 threads 1.3x faster than 1; shared (load ~8; 256 trials,
+    pools of 128), 2 threads 11.4 s wall against 8.3 s. ``fit_trials`` uses the
+    available cores by default.
     """
     n = u0.shape[0]
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
