@@ -127,11 +127,12 @@ by_quantity.head(10).round(3)
 # Trained on one day and tested on the other, on 12 deliberately close classes, the
 # default `physical` set (measured contact quantities with the shape quantities) scores
 # 0.57 (folds 0.53 / 0.61), ahead of handcrafted (0.35), FFT bins (0.31) and raw signals
-# (0.24); adding the fitted parameters (`physical (all)`, 0.53) or the handcrafted
+# (0.24); adding the fitted parameters (`physical (all)`, 0.54) or the handcrafted
 # features (0.53) does not help. Every physical set gets the layer count right (1.00),
 # and most errors fall inside the designed look-alike pairs (curtain-rose vs
-# curtain-white, paper-2 vs banknote-2). The SVM leans on the back stroke's rise, the
-# normalised relaxation at 400 ms, onset rates, relaxation times and the slip ripple; of
-# the fitted parameters only `k` reaches the top ten. With one training day the LDA
+# curtain-white, paper-2 vs banknote-2). The SVM leans on the slip ripple, the relaxed
+# fractions, the normalised relaxation at 200 and 400 ms, the time to peak and the out
+# stroke's rise; of the fitted parameters the static excess and kinetic friction reach the top ten
+# (second and fourth), `k` does not. With one training day the LDA
 # projection stepped aside (too few rows); on the lab stand-in, with two or three
 # training days, it is what lifts physical features above the hand-crafted baseline.
