@@ -30,8 +30,8 @@ __all__ = ["FAMILY", "PARAMS", "ContactModel", "get_model"]
 #: 0.07-0.22 s). The rig's motor moves the 1 mm stroke in 100-150 ms (rubbing-lab README;
 #: segmentation measured 125-221 ms, p5-p95, on the lab stand-in). Without it the trial's
 #: onset only fixes ``k / ramp**2`` and ``slip_length * ramp**2``: a ridge along which the
-#: fit wandered (median error of k 60 %, of ramp 39 % on 256 simulated trials; 25 % / 14 %
-#: with a prior) and the LM crawled. Override per fit (``priors=``, ``--prior``).
+#: fit wandered (median error of k 60 %, of ramp 39 % on 256 simulated trials; 19 % / 10 %
+#: with this prior) and the LM crawled. Override per fit (``priors=``, ``--prior``).
 RAMP_PRIOR = (0.125, 0.3)
 
 #: Every parameter of the family, defined once: name, unit, bounds, transform, default.

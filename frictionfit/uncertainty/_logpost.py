@@ -68,11 +68,7 @@ def sampling_bounds(model: ContactModel) -> tuple[np.ndarray, np.ndarray]:
 def to_sampling(model: ContactModel, u: np.ndarray) -> np.ndarray:
     """Sampling coordinates (log value, value, or offset) of unconstrained ``u[..., p]``."""
     u = np.asarray(u, dtype=np.float64)
-    lo, hi = sampling_bounds(model)
-    bounded = np.isfinite(lo)
-    span = np.where(bounded, hi - lo, 1.0)
-    s = 0.5 * (1.0 + np.tanh(0.5 * u))
-    return np.where(bounded, np.where(bounded, lo, 0.0) + span * s, u)
+    return np.stack([p.to_sampling(u[..., j]) for j, p in enumerate(model.params)], axis=-1)
 
 
 def from_sampling(model: ContactModel, x, xp=np):
