@@ -64,7 +64,7 @@ def test_fit_on_a_dask_scheduler_equals_the_local_fit(tmp_path):
     local, remote = tmp_path / "local.csv", tmp_path / "remote.csv"
     assert CliRunner().invoke(app, [*args, "--out", str(local)]).exit_code == 0
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         result = CliRunner().invoke(app, [*args, "--out", str(remote),
                                           "--scheduler", cluster.scheduler_address])
     assert result.exit_code == 0, result.output

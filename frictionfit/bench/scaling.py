@@ -88,7 +88,7 @@ def dask_speedup(n_trials: int = 256, repeats: int = 3, seed: int = 0, scheduler
 
     ts = _trials(n_trials, seed)
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                           dashboard_address=None) if scheduler is None else None
+                           dashboard_address=":0") if scheduler is None else None
     client = scheduler if isinstance(scheduler, Client) else Client(cluster or scheduler)
     try:
         timing = alternate({
