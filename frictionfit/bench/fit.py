@@ -24,7 +24,7 @@ from frictionfit.bench._timing import alternate, machine_info, timed
 from frictionfit.errors import Status
 from frictionfit.fit import fit_trials, initial_guess
 from frictionfit.fit._problem import noise_scale
-from frictionfit.models import FAMILY, PARAMS, ContactModel, get_model
+from frictionfit.models import FAMILY, ContactModel, get_model
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
 __all__ = ["IDENTIFIABLE", "measure", "numpy_predict", "run"]
@@ -124,14 +124,10 @@ def _peers(model: ContactModel, ts: TrialSet, u0: np.ndarray):
     t = ts.t
     tj = jnp.asarray(t)
     noise = noise_scale(ts.y, np.isfinite(ts.y))
-    priors = [(model.param_names.index(n), *PARAMS[n].prior_in_sampling(p))
-              for n, p in model.prior_table.items()]
 
     def np_resid(x, i):  # the same objective as ours: data residuals, then prior rows
         data = numpy_predict(model, x, t, ts.t_out, ts.t_back, ts.direction[i]) - ts.y[i]
-        rows = [noise[i] * (model.params[j].to_sampling(np.float64(x[j])) - centre) / sd
-                for j, centre, sd in priors]
-        return np.concatenate([data, rows])
+        return np.concatenate([data, noise[i] * model.prior_residuals(np.asarray(x))])
 
     def jax_resid(x, y, d, s):
         data = model.predict(x, tj, (ts.t_out, ts.t_back), d) - y

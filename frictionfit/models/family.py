@@ -20,6 +20,7 @@ from collections.abc import Mapping
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force, drive
@@ -115,16 +116,18 @@ class ContactModel(eqx.Module):
 
     def prior_residuals(self, u, sampling: bool = False):
         """``(x_j - centre_j) / sd_j`` per prior, shape ``(..., n_priors)``, where ``x_j`` is
-        the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``)."""
+        the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``);
+        a NumPy array for a NumPy ``u``, else a JAX array."""
         rows = []
         for name, prior in self.prior_table.items():
             par = PARAMS[name]
             centre, sd = par.prior_in_sampling(prior)
             x = u[..., self.param_names.index(name)]
             rows.append(((x if sampling else par.to_sampling(x)) - centre) / sd)
+        xp = np if isinstance(u, np.ndarray) else jnp  # NumPy in, NumPy out
         if not rows:
-            return jnp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
-        return jnp.stack(rows, axis=-1)
+            return xp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
+        return xp.stack(rows, axis=-1)
 
     @property
     def param_names(self) -> tuple[str, ...]:
