@@ -90,3 +90,15 @@ def test_absent_effect_equals_switched_off_effect():
     full = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15, 0.0, 1.0, 0.0)
     lean = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15)
     np.testing.assert_allclose(lean, full, rtol=0, atol=1e-14)
+
+
+def test_ramp_shape_is_the_raised_cosine_to_rounding_with_its_derivative():
+    from frictionfit.models.stick_slip import ramp_shape
+
+    u = jnp.linspace(-0.3, 1.3, 20001)
+    np.testing.assert_allclose(ramp_shape(u), 0.5 - 0.5 * jnp.cos(jnp.pi * jnp.clip(u, 0, 1)),
+                               rtol=0, atol=4e-16)
+    slope = jax.vmap(jax.grad(ramp_shape))(u)
+    inside = (u > 0) & (u < 1)
+    exact = jnp.where(inside, 0.5 * jnp.pi * jnp.sin(jnp.pi * u), 0.0)
+    np.testing.assert_allclose(slope, exact, rtol=0, atol=2e-15)

@@ -15,6 +15,8 @@ exponential integrator) and viscous damping act on ``z``.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
@@ -23,10 +25,46 @@ from frictionfit.models.relaxation import maxwell_coefficients
 __all__ = ["contact_force", "drive", "ramp_shape"]
 
 
+#: Taylor coefficients of ``sin(x) / x`` and ``cos(x)`` in powers of ``x**2``; on
+#: ``|x| <= pi/2`` the first omitted terms are below 2e-18 and 2e-17.
+_SIN_TAYLOR = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(11))
+_COS_TAYLOR = tuple((-1) ** k / math.factorial(2 * k) for k in range(12))
+
+
+def _horner(x2, coefs):
+    acc = coefs[-1]
+    for c in coefs[-2::-1]:
+        acc = acc * x2 + c
+    return acc
+
+
+@jax.custom_jvp
+def _sin_half_period(x):
+    """``sin(x)`` for ``|x| <= pi/2``, exact to rounding, as a polynomial.
+
+    XLA's general ``cos`` (range reduction included) took ~80 % of the drive and
+    half of a batched log-posterior evaluation on the CPU; this is ~5x cheaper.
+    Its derivative is the matching ``cos`` polynomial (differentiating the
+    Horner steps instead would cost two operations per step and tangent).
+    """
+    return x * _horner(x * x, _SIN_TAYLOR)
+
+
+@_sin_half_period.defjvp
+def _sin_half_period_jvp(primals, tangents):
+    (x,), (dx,) = primals, tangents
+    x2 = x * x
+    return x * _horner(x2, _SIN_TAYLOR), _horner(x2, _COS_TAYLOR) * dx
+
+
 def ramp_shape(u):
-    """Raised-cosine ramp from 0 (u <= 0) to 1 (u >= 1); smooth inside."""
+    """Raised-cosine ramp from 0 (u <= 0) to 1 (u >= 1); smooth inside.
+
+    ``0.5 - 0.5 cos(pi v)`` for ``v = clip(u, 0, 1)``, computed as
+    ``0.5 + 0.5 sin(pi (v - 1/2))`` on the half period where the polynomial is exact.
+    """
     v = jnp.clip(u, 0.0, 1.0)
-    return 0.5 - 0.5 * jnp.cos(jnp.pi * v)
+    return 0.5 + 0.5 * _sin_half_period(jnp.pi * (v - 0.5))
 
 
 def drive(t, t_out, t_back, delay, ramp, stroke):
