@@ -96,6 +96,12 @@ def test_arviz_corner_and_hdf5_chains(both, tmp_path):
 
     with h5py.File(chains) as f:
         assert {"trial_0", "trial_1"} <= set(f) and "trial_2" not in f
+    from emcee.backends import HDFBackend
+
+    saved = HDFBackend(str(chains), name="trial_1", read_only=True)
+    assert saved.get_chain().shape == (100, 12, get_model(MODEL).n_params)
+    assert np.all(np.isfinite(saved.get_log_prob()))
+    np.testing.assert_allclose(np.mean(saved.accepted) / 100, mc.acceptance[1])
     data = to_arviz(mc, 0)
     assert set(data.posterior.data_vars) == set(get_model(MODEL).param_names)
     corner_plot(mc, 0, tmp_path / "corner.png")

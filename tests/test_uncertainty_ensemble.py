@@ -1,4 +1,4 @@
-"""The lockstep emcee engine on a linear-Gaussian problem with a known posterior."""
+"""The shared-ensemble emcee engine on a linear-Gaussian problem with a known posterior."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.uncertainty._ensemble import _Lockstep, run_lockstep
+from frictionfit.uncertainty._ensemble import run_lockstep
 
 
 def _linear_gaussian(rng, n_trials=3, n_obs=40, p=3, noise_sd=0.5, prior_sd=3.0):
@@ -63,23 +63,30 @@ def test_an_evaluation_error_reaches_every_trial_without_hanging(rng):
     assert all(isinstance(c, RuntimeError) and "blew up" in str(c) for c in chains)
 
 
-def test_lockstep_batches_all_running_trials_into_one_call(rng):
+def test_one_call_per_step_holds_every_running_trial_until_it_stops(rng):
     calls = []
     evaluate, mean, cov = _linear_gaussian(rng, n_trials=4)
 
     def counting(U, idx):
-        calls.append(np.unique(idx).size)
+        calls.append(np.bincount(idx, minlength=4))
         return evaluate(U, idx)
 
-    run_lockstep(counting, mean, cov, nwalkers=8, seed=0, max_steps=50, check_every=50)
-    # Moves need one (independence) or two (DE, half ensembles) calls per step, so
-    # trials finish after different numbers of calls; until then, calls hold all four.
-    assert max(calls) == 4 and np.median(calls) == 4
+    chains = run_lockstep(counting, mean, cov, nwalkers=8, seed=0, max_steps=4000)
+    calls = np.array(calls)
+    assert set(np.unique(calls)) == {0, 8}  # a trial is in a call with all its walkers or not
+    # every trial is evaluated in every call until its chain stops, then in none
+    pilot = 3 * 30 + 1  # the initial state's call and the pilot steps
+    for k, chain in enumerate(chains):
+        n_calls = pilot + chain.n_steps + chain.n_pilot - 90
+        assert np.all(calls[:n_calls, k] == 8) and np.all(calls[n_calls:, k] == 0)
 
 
-def test_a_single_trial_is_evaluated_at_once():
-    box = _Lockstep(lambda batch: {s: x.sum(axis=1) for s, x in batch.items()}, 1)
-    assert box.log_prob(0)(np.ones((2, 3))).tolist() == [3.0, 3.0]
+def test_trials_in_a_batch_are_reproducible_from_the_seed(rng):
+    evaluate, mean, cov = _linear_gaussian(rng, n_trials=2)
+    a, b = (run_lockstep(evaluate, mean, cov, nwalkers=8, seed=4, max_steps=60)
+            for _ in range(2))
+    for ca, cb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(ca.samples, cb.samples)
 
 
 def test_t_mixture_density_matches_scipy_and_its_draws(rng):
@@ -138,3 +145,17 @@ def test_sampling_coordinates_carry_the_same_posterior():
     outside = x.copy()
     outside[0, 1] = 99.0  # log stiffness beyond its bound
     assert np.asarray(logp_rows(model, True)(outside, idx, data.t, *data.arrays()))[0] == -np.inf
+
+
+def test_integrated_time_is_emcees_estimator(rng):
+    import emcee
+
+    from frictionfit.uncertainty._ensemble import integrated_time
+
+    for n, rho in ((37, 0.0), (300, 0.6), (1000, 0.95)):  # lengths below and above 2^k
+        e = rng.standard_normal((n, 6, 3))
+        x = np.zeros_like(e)
+        for k in range(n):
+            x[k] = rho * x[k - 1] + e[k] if k else e[k]
+        np.testing.assert_allclose(integrated_time(x),
+                                   emcee.autocorr.integrated_time(x, tol=0), rtol=1e-10)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Mapping, Sequence
 
@@ -10,6 +9,7 @@ import jax
 import numpy as np
 import pandas as pd
 
+from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit._guess import (
     direction_of,
@@ -259,7 +259,7 @@ def fit_trials(
                 n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
                 saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm,
                 noise=noise_scale(y_clean, mask),
-                threads=_cores() if threads is None else max(int(threads), 1))
+                threads=available_cores() if threads is None else max(int(threads), 1))
     names = [m.name for m in FAMILY] if model == "auto" else [model]
     try:
         members = [get_model(n, drive=drive, stroke_mm=stroke_mm, priors=priors) for n in names]
@@ -313,13 +313,6 @@ def fit_trials(
         drive_input=drive_input, drive=drive, stroke_mm=stroke_mm,
         priors=dict(priors) if priors is not None else None,
     )
-
-
-def _cores() -> int:
-    """The CPU cores this process may run on."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def _warm_start(member, start_u, previous):

@@ -1,22 +1,31 @@
-"""emcee ensembles of many trials advanced in lockstep, with a tau-based stopping rule.
+"""emcee for many trials at once: one ensemble of every running trial's walkers.
 
-Each trial has its own :class:`emcee.EnsembleSampler` (``vectorize=True``) in its
-own thread. Their log-probability functions hand the walkers to a shared
-:class:`_Lockstep` gatherer, which evaluates the walkers of *every* running
-trial in one batched JAX call once all of them have asked (threads only wait;
-the JAX call releases the GIL). A trial stops when its chain is at least
-``min_tau_multiple`` integrated autocorrelation times long and tau changed by
-less than ``tau_rtol`` since the previous check, or at ``max_steps`` (then it is
-flagged ``converged=False``).
+All running trials share one :class:`emcee.EnsembleSampler` (``vectorize=True``):
+rows ``j * w ... (j + 1) * w - 1`` of its ensemble are the ``w`` walkers of the
+``j``-th running trial. Its moves are Metropolis-Hastings moves that move each
+walker alone, with its own trial's proposal, so walkers of different trials never
+interact and each block is an exact MCMC chain of its own trial's posterior; one
+log-probability call per step evaluates the walkers of every running trial in one
+batched JAX call. Every ``check_every`` steps each trial's chain is checked: a trial
+stops when its chain is at least ``min_tau_multiple`` integrated autocorrelation
+times long and tau changed by less than ``tau_rtol`` since the previous check, or
+at ``max_steps`` (then it is flagged ``converged=False``); its walkers leave the
+ensemble and the sampler goes on with the rest.
 
-Moves (default): an *adaptive independence sampler*, in the sampling coordinates
-of :mod:`~frictionfit.uncertainty._logpost` (log units).
+Why one ensemble and not one sampler per trial: the former engine ran a sampler per
+trial in its own thread and gathered their calls into one batched evaluation. On 24
+``relaxation`` trials (2-s, 1 kHz, 20 dB) it spent 47 s of 107 s in the batched
+evaluation and the rest switching ~24 threads in and out of the GIL once per step.
 
-1. Walkers start as independent draws from the Laplace t (df 5); three pilot stages
-   of ``pilot_steps`` independence-MH steps each refit the proposal to the draws so
-   far (the first third of stage 1 dropped): a :class:`~._proposal.RidgeMap` (a
-   quadratic, volume-preserving map that straightens the curved ridge) and a t in
-   the straightened coordinates, mixed 0.8 / 0.2 with the Laplace t (defensive).
+Moves: an *adaptive independence sampler*, in the sampling coordinates of
+:mod:`~frictionfit.uncertainty._logpost` (log units).
+
+1. Walkers start as independent draws from the Laplace t (df 5); ``pilot_stages``
+   stages of ``pilot_steps`` independence-MH steps each refit the proposal to the
+   draws so far (the first third of stage 1 dropped): a
+   :class:`~._proposal.RidgeMap` (a quadratic, volume-preserving map that
+   straightens the curved ridge) and a t in the straightened coordinates, mixed
+   0.8 / 0.2 with the Laplace t (defensive).
 2. The kept chain: 0.8 independence MH from that proposal + 0.2 random walk in the
    straightened coordinates (unsticks walkers in the tails). If the chain has not
    converged at 100 and 200 steps and its largest tau exceeds :data:`REFIT_MIN_TAU`,
@@ -24,38 +33,36 @@ of :mod:`~frictionfit.uncertainty._logpost` (log units).
    steps count as pilot, ``ChainResult.n_pilot``).
 
 Why, measured on the default ``relaxation`` model (9 parameters; 2-s, 1 kHz, 20 dB
-trials, seed 0, fitted from the truth): the old mix (0.6 independence from the
+trials, seed 0, fitted from the truth): the former mix (0.6 independence from the
 Laplace t + 0.3 DE + 0.1 DE-snooker, in ``u``; 36 walkers, 2000 steps) had max tau
 45-187 steps on 8 of 8 trials, always on ``k``, ``slip_length`` and ``ramp``. Their
 posterior is a long, thin ridge: correlations 0.99, ``k ~ ramp**(1.6..2.0)`` and
 ``slip_length ~ ramp**-(1.7..2.0)`` (the trial's onset fixes ``k / ramp**2``), the
 ratio of its thinnest to its longest sd ~1/6000, flat-topped along the ridge with
-a cliff on one side, ``ramp`` spanning 0.06-0.5 s (95 %) on some trials. The
-logistic map of ``u`` bends that ridge, so DE and stretch moves crawl. Pure
-independence MH from the Laplace t in log coordinates: acceptance 0.31 / 0.43,
-max tau 10 / 4.5 on two trials; the adaptive sampler: 4 of 8 trials converged
-(>= 50 tau) after 225-400 kept steps (max tau 3.6-6.7, acceptance 0.49-0.58); the
-other 4 did not in 2000 steps (max tau 54-92: walkers stuck far out on the ridge,
-where the fitted proposal is thin). The linear-Gaussian test problem converges
-with it in a few hundred steps.
+a cliff on one side. The logistic map of ``u`` bends that ridge, so DE and stretch
+moves crawl. Pure independence MH from the Laplace t in log coordinates:
+acceptance 0.31 / 0.43, max tau 10 / 4.5 on two trials; the adaptive sampler (before
+the ramp prior bounded the ridge): 4 of 8 trials converged (>= 50 tau) after 225-400
+kept steps (max tau 3.6-6.7, acceptance 0.49-0.58). With the ramp prior, on 200
+trials: median max tau 3.5 steps, acceptance 0.60. Walkers of one trial only share
+the proposal, never a move, so DE-type moves (which need the walkers of one trial
+to interact) have no place in the shared ensemble.
 """
 
 from __future__ import annotations
 
-import contextlib
-import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
-from scipy import stats
 
 from frictionfit.uncertainty._proposal import (
     MappedT,
+    Propose,
     TMixture,
-    independence_move,
-    ridge_walk_move,
+    independence_step,
+    ridge_walk_step,
 )
 
 #: A chain not converged at a refit point is refitted and restarted only if its largest
@@ -63,91 +70,7 @@ from frictionfit.uncertainty._proposal import (
 #: proposal can shorten; at tau ~3.5 (median on 200 relaxation trials) 175 steps will do.
 REFIT_MIN_TAU = 10.0
 
-__all__ = ["ChainResult", "IndependenceMove", "SerialHDFBackend", "default_moves",
-           "run_lockstep"]
-
-
-def IndependenceMove(mean: np.ndarray, cov: np.ndarray, df: float = 5.0) -> emcee.moves.MHMove:
-    """Independence Metropolis-Hastings from a multivariate t around the Laplace mode.
-
-    Exact for any target (the proposal ratio enters the acceptance); nearly
-    independent draws where the posterior is close to its Laplace Gaussian, and
-    the t tails (``df``) keep it safe where the posterior is wider.
-    """
-    dist = stats.multivariate_t(loc=mean, shape=cov, df=df, allow_singular=True)
-
-    def propose(coords: np.ndarray, random: np.random.RandomState):
-        new = np.atleast_2d(dist.rvs(size=coords.shape[0], random_state=random))
-        return new, dist.logpdf(coords) - dist.logpdf(new)
-
-    return emcee.moves.MHMove(propose)
-
-
-def default_moves(mean: np.ndarray, cov: np.ndarray) -> list:
-    """The move mix: independence proposals from the Laplace t, plus DE moves.
-
-    The DE / DE-snooker share lets the ensemble adapt where the posterior is
-    not Gaussian (the independence move alone then sticks).
-    """
-    return [(IndependenceMove(mean, cov), 0.6), (emcee.moves.DEMove(), 0.3),
-            (emcee.moves.DESnookerMove(), 0.1)]
-
-
-class SerialHDFBackend(emcee.backends.HDFBackend):
-    """emcee's HDF5 backend with every file access serialised, so that the samplers of
-    many trials (threads) can save their chains to groups of one file."""
-
-    _lock = threading.RLock()
-
-    @contextlib.contextmanager
-    def open(self, mode: str = "r"):
-        with self._lock:
-            f = super().open(mode)
-            try:
-                yield f
-            finally:
-                f.close()
-
-
-class _Lockstep:
-    """Gathers the walkers every running sampler asks for into one evaluation."""
-
-    def __init__(self, evaluate: Callable[[dict[int, np.ndarray]], dict[int, np.ndarray]],
-                 n_active: int):
-        self._evaluate = evaluate
-        self._cond = threading.Condition()
-        self._active = n_active
-        self._pending: dict[int, np.ndarray] = {}
-        self._results: dict[int, object] = {}
-
-    def log_prob(self, slot: int) -> Callable[[np.ndarray], np.ndarray]:
-        def log_prob(coords: np.ndarray) -> np.ndarray:
-            with self._cond:
-                self._pending[slot] = np.asarray(coords, dtype=np.float64)
-                self._run_if_ready()
-                while slot not in self._results:
-                    self._cond.wait()
-                out = self._results.pop(slot)
-            if isinstance(out, BaseException):
-                raise out
-            return out
-
-        return log_prob
-
-    def done(self) -> None:
-        with self._cond:
-            self._active -= 1
-            self._run_if_ready()
-
-    def _run_if_ready(self) -> None:
-        if not self._pending or len(self._pending) < self._active:
-            return
-        batch, self._pending = self._pending, {}
-        try:
-            self._results.update(self._evaluate(batch))
-        except Exception as exc:  # every waiting sampler sees the error, none hangs
-            self._results.update(dict.fromkeys(batch, exc))
-        self._cond.notify_all()
+__all__ = ["ChainResult", "integrated_time", "run_lockstep", "save_chain"]
 
 
 @dataclass
@@ -185,76 +108,106 @@ class ChainResult:
         return n / np.maximum(self.tau, 1.0)
 
 
-def _imh_stage(log_prob, state, nwalkers, proposal, steps):
-    """Independence MH from ``proposal`` for ``steps`` steps; the chain and its acceptance."""
-    sampler = emcee.EnsembleSampler(nwalkers, state.coords.shape[1], log_prob, vectorize=True,
-                                    moves=[independence_move(proposal)])
+@dataclass
+class _Trial:
+    """The sampling state of one trial: its proposal and its chain so far."""
+
+    index: int
+    laplace_t: TMixture
+    proposal: TMixture | MappedT
+    refits: list[int]
+    draws: list[np.ndarray] = field(default_factory=list)  # pilot draws (steps, w, p)
+    chain: list[np.ndarray] = field(default_factory=list)  # kept chain blocks
+    log_prob: list[np.ndarray] = field(default_factory=list)
+    accepted: np.ndarray | None = None  # accepted moves per walker, kept chain
+    n_pilot: int = 0
+    tau: np.ndarray | None = None
+
+    @property
+    def n_steps(self) -> int:
+        return sum(len(c) for c in self.chain)
+
+    def refit(self, draws: np.ndarray) -> None:
+        """Add ``draws (steps, w, p)`` to the pilot draws and refit the proposal."""
+        self.draws.append(draws)
+        p = draws.shape[-1]
+        self.proposal = MappedT.fit(np.concatenate(self.draws).reshape(-1, p), self.laplace_t)
+
+    def restart(self) -> None:
+        """Refit the proposal on the chain so far (its last two thirds) and start anew."""
+        chain = np.concatenate(self.chain)
+        self.refit(chain[len(chain) // 3:])
+        self.n_pilot += len(chain)
+        self.chain, self.log_prob, self.accepted, self.tau = [], [], None, None
+
+
+def _blockwise(steps: list[Propose]) -> emcee.moves.MHMove:
+    """One MH move of the shared ensemble: block ``j`` of walkers proposed by ``steps[j]``."""
+
+    def propose(coords: np.ndarray, random: np.random.RandomState):
+        blocks = [step(c, random) for step, c in zip(steps, np.split(coords, len(steps)),
+                                                       strict=True)]
+        return (np.concatenate([b[0] for b in blocks]),
+                np.concatenate([b[1] for b in blocks]))
+
+    return emcee.moves.MHMove(propose)
+
+
+def _run(evaluate, running: list[_Trial], nwalkers: int, moves: list, state: emcee.State,
+         steps: int) -> tuple[emcee.State, emcee.EnsembleSampler]:
+    """Advance the shared ensemble of ``running`` trials by ``steps`` steps."""
+    idx = np.repeat([tr.index for tr in running], nwalkers)
+    sampler = emcee.EnsembleSampler(len(running) * nwalkers, state.coords.shape[1],
+                                    lambda x: evaluate(x, idx), vectorize=True, moves=moves)
     state = sampler.run_mcmc(state, steps, progress=False, skip_initial_state_check=True)
-    return state, sampler.get_chain(), float(np.mean(sampler.acceptance_fraction))
+    return state, sampler
 
 
-def _sample_one(slot, lockstep, mean, cov, nwalkers, moves, seed, max_steps, check_every,
-                min_tau_multiple, tau_rtol, min_acceptance, backend, pilot_steps,
-                pilot_stages, refit_at=(100, 200)) -> ChainResult:
-    n_pilot = 0
-    try:
-        rng = np.random.RandomState(seed)
-        log_prob = lockstep.log_prob(slot)
-        p = mean.size
-        if moves is None:  # adaptive independence sampler (module docstring)
-            laplace_t = TMixture.gaussian_t(mean, cov, df=5.0)
-            proposal = laplace_t
-            state = emcee.State(laplace_t.rvs(nwalkers, rng), random_state=rng.get_state())
-            draws = []
-            for stage in range(pilot_stages):
-                state, chain, _ = _imh_stage(log_prob, state, nwalkers, proposal, pilot_steps)
-                draws.append(chain[pilot_steps // 3:] if stage == 0 else chain)
-                proposal = MappedT.fit(np.concatenate(draws).reshape(-1, p), laplace_t)
-                n_pilot += pilot_steps
-            moves = [(independence_move(proposal), 0.8), (ridge_walk_move(proposal), 0.2)]
-        else:
-            sd = np.sqrt(np.maximum(np.diag(cov), 1e-12))
-            p0 = mean + 1e-3 * sd * rng.standard_normal((nwalkers, p))
-            state = emcee.State(p0, random_state=rng.get_state())
-            draws = None
-        refits = list(refit_at) if draws is not None else []
-        while True:
-            sampler = emcee.EnsembleSampler(nwalkers, p, log_prob, vectorize=True,
-                                            moves=moves, backend=backend)
-            if backend is not None:
-                backend.reset(nwalkers, p)
-            tau_old = np.full(p, np.inf)
-            converged = refit = False
-            while sampler.iteration < max_steps and not converged and not refit:
-                state = sampler.run_mcmc(state, min(check_every, max_steps - sampler.iteration),
-                                         progress=False, skip_initial_state_check=True)
-                tau = sampler.get_autocorr_time(tol=0)
-                stable = np.all(np.abs(tau_old - tau) < tau_rtol * tau)
-                converged = bool(np.all(np.isfinite(tau)) and stable
-                                 and sampler.iteration >= min_tau_multiple * tau.max())
-                tau_old = tau
-                # Refit and restart only a chain that mixes slowly: one with a small tau
-                # converges sooner by running on than by starting over.
-                refit = bool(not converged and refits and sampler.iteration >= refits[0]
-                             and np.nanmax(tau) > REFIT_MIN_TAU)
-            if not refit:
-                break
-            # Not converged yet: refit the proposal on every draw so far, restart the chain.
-            refits.pop(0)
-            chain = sampler.get_chain()
-            draws.append(chain[chain.shape[0] // 3:])
-            proposal = MappedT.fit(np.concatenate(draws).reshape(-1, p), laplace_t)
-            moves = [(independence_move(proposal), 0.8), (ridge_walk_move(proposal), 0.2)]
-            n_pilot += sampler.iteration
-    finally:
-        lockstep.done()
-    acceptance = float(np.mean(sampler.acceptance_fraction))
-    tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else float(sampler.iteration)
+def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
+    """Integrated autocorrelation time per parameter (steps) of ``chain (steps, walkers, p)``.
+
+    emcee's estimator (:func:`emcee.autocorr.integrated_time` with ``tol=0``): the
+    walkers' normalised autocorrelation functions averaged, summed up to Sokal's
+    window (the first lag ``M >= c tau(M)``). Vectorised over walkers and parameters
+    (emcee loops over both in Python: a quarter of the sampler's time on 24 trials);
+    equal to emcee's to rounding (test). NaN for a walker frozen in place.
+    """
+    n, _, p = chain.shape
+    x = chain - chain.mean(axis=0)
+    size = 2 * (1 << (n - 1).bit_length())
+    f = np.fft.rfft(x, n=size, axis=0)
+    acf = np.fft.irfft(f * np.conj(f), n=size, axis=0)[:n]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        taus = 2.0 * np.cumsum(np.mean(acf / acf[:1], axis=1), axis=0) - 1.0
+        inside = np.arange(n)[:, None] < c * taus
+    window = np.where(inside.any(axis=0), np.argmin(inside, axis=0), n - 1)
+    return taus[window, np.arange(p)]
+
+
+def _result(tr: _Trial, min_acceptance: float, converged: bool) -> ChainResult:
+    chain = np.concatenate(tr.chain)
+    tau = tr.tau
+    acceptance = float(np.mean(tr.accepted) / len(chain))
+    finite = np.all(np.isfinite(tau))
+    tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else float(len(chain))
     burn = int(np.ceil(2 * tau_max))
-    thin = max(1, int(0.5 * np.nanmin(tau))) if np.all(np.isfinite(tau)) else 1
-    samples = sampler.get_chain(discard=min(burn, sampler.iteration - 1), thin=thin)
-    return ChainResult(samples, tau, sampler.iteration, burn, thin, acceptance,
-                       converged and acceptance >= min_acceptance, n_pilot)
+    thin = max(1, int(0.5 * np.nanmin(tau))) if finite else 1
+    samples = chain[min(burn, len(chain) - 1):][thin - 1::thin]
+    return ChainResult(samples, tau, len(chain), burn, thin, acceptance,
+                       converged and acceptance >= min_acceptance, tr.n_pilot)
+
+
+def save_chain(backend: emcee.backends.HDFBackend, tr: _Trial) -> None:
+    """Write a trial's kept chain to an emcee HDF5 backend (read back with its API)."""
+    chain, log_prob = np.concatenate(tr.chain), np.concatenate(tr.log_prob)
+    backend.reset(chain.shape[1], chain.shape[2])
+    backend.grow(len(chain), None)
+    with backend.open("a") as f:
+        g = f[backend.name]
+        g["chain"][...] = chain
+        g["log_prob"][...] = log_prob
+        g["accepted"][...] = tr.accepted
+        g.attrs["iteration"] = len(chain)
 
 
 def run_lockstep(
@@ -269,63 +222,94 @@ def run_lockstep(
     min_tau_multiple: float = 50.0,
     tau_rtol: float = 0.05,
     min_acceptance: float = 0.1,
-    moves: Callable[[np.ndarray, np.ndarray], list] | None = None,
     backends: list | None = None,
     pilot_steps: int = 30,
     pilot_stages: int = 3,
-) -> list[ChainResult]:
-    """Sample every trial's posterior with emcee, all trials in lockstep.
+    refit_at: tuple[int, ...] = (100, 200),
+) -> list[ChainResult | BaseException]:
+    """Sample every trial's posterior with emcee, all trials in one shared ensemble.
 
     Parameters
     ----------
     evaluate : callable
         ``evaluate(U (R, p), idx (R,)) -> log-posterior (R,)``: row ``r`` is a
-        walker of trial ``idx[r]``; called once per lockstep round.
+        walker of trial ``idx[r]``; called once per step for every running trial.
     means, covs : ndarray (n_trials, p), (n_trials, p, p)
         Laplace mode and covariance per trial (in the coordinates ``evaluate``
-        takes): the adaptive sampler starts from their t; with ``moves`` given, the
-        walkers start in a tight ball (1e-3 sd) at the mode.
+        takes): the walkers start as draws from their t.
     nwalkers : int
-        Walkers per trial (at least ``2 p``).
+        Walkers per trial.
     max_steps, check_every : int
-        Step cap per trial; steps between convergence checks.
+        Step cap of each trial's kept chain; steps between convergence checks.
     min_tau_multiple, tau_rtol, min_acceptance : float
         Convergence: steps >= ``min_tau_multiple`` x max tau, relative tau change
         below ``tau_rtol``, mean acceptance fraction >= ``min_acceptance``.
-    moves : callable, optional
-        ``moves(mean, cov) -> emcee moves`` (e.g. :func:`default_moves`, the former
-        default) instead of the adaptive independence sampler (no pilot).
     backends : list, optional
-        One emcee backend per trial (e.g. ``emcee.backends.HDFBackend``).
+        One ``emcee.backends.HDFBackend`` per trial; the kept chain is written there.
     pilot_steps, pilot_stages : int
         Adaptation: steps per pilot stage and number of stages.
+    refit_at : tuple of int
+        Chain lengths at which a slowly mixing chain is refitted and restarted.
+
+    Returns
+    -------
+    list
+        A :class:`ChainResult` per trial, or the exception that stopped the sampler
+        (the same one for every trial still running then). Deterministic given
+        ``seed`` and the batch; a trial's draws depend on which trials share its batch.
     """
-    n_trials = means.shape[0]
-
-    def gather(batch: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
-        slots = list(batch)
-        U = np.concatenate([batch[s] for s in slots])
-        idx = np.concatenate([np.full(len(batch[s]), s) for s in slots])
-        out = evaluate(U, idx)
-        splits = np.cumsum([len(batch[s]) for s in slots])[:-1]
-        return dict(zip(slots, np.split(out, splits), strict=True))
-
-    lockstep = _Lockstep(gather, n_trials)
-    results: list[ChainResult | BaseException | None] = [None] * n_trials
-
-    def work(i: int) -> None:
-        try:
-            results[i] = _sample_one(
-                i, lockstep, means[i], covs[i], nwalkers,
-                None if moves is None else moves(means[i], covs[i]), seed + i, max_steps,
-                check_every, min_tau_multiple, tau_rtol, min_acceptance,
-                None if backends is None else backends[i], pilot_steps, pilot_stages)
-        except Exception as exc:  # reported per trial by the caller
-            results[i] = exc
-
-    threads = [threading.Thread(target=work, args=(i,), daemon=True) for i in range(n_trials)]
-    for th in threads:
-        th.start()
-    for th in threads:
-        th.join()
+    n, p = means.shape
+    rng = np.random.RandomState(seed)
+    running = []
+    for i in range(n):
+        laplace_t = TMixture.gaussian_t(means[i], covs[i], df=5.0)
+        running.append(_Trial(i, laplace_t, laplace_t, list(refit_at)))
+    coords = np.concatenate([tr.laplace_t.rvs(nwalkers, rng) for tr in running])
+    state = emcee.State(coords, random_state=rng.get_state())
+    results: list[ChainResult | BaseException | None] = [None] * n
+    try:
+        for stage in range(pilot_stages):
+            moves = [_blockwise([independence_step(tr.proposal) for tr in running])]
+            state, sampler = _run(evaluate, running, nwalkers, moves, state, pilot_steps)
+            for tr, block in zip(running, np.split(sampler.get_chain(), n, axis=1),
+                                 strict=True):
+                tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
+                tr.n_pilot += pilot_steps
+        while running:
+            steps = min(check_every, min(max_steps - tr.n_steps for tr in running))
+            moves = [(_blockwise([independence_step(tr.proposal) for tr in running]), 0.8),
+                     (_blockwise([ridge_walk_step(tr.proposal) for tr in running]), 0.2)]
+            state, sampler = _run(evaluate, running, nwalkers, moves, state, steps)
+            m = len(running)
+            blocks = zip(running, np.split(sampler.get_chain(), m, axis=1),
+                         np.split(sampler.get_log_prob(), m, axis=1),
+                         np.split(sampler.backend.accepted, m), strict=True)
+            keep = []
+            for j, (tr, chain, log_prob, accepted) in enumerate(blocks):
+                tr.chain.append(chain)
+                tr.log_prob.append(log_prob)
+                tr.accepted = accepted if tr.accepted is None else tr.accepted + accepted
+                tau_old = np.full(p, np.inf) if tr.tau is None else tr.tau
+                tr.tau = integrated_time(np.concatenate(tr.chain))
+                stable = np.all(np.abs(tau_old - tr.tau) < tau_rtol * tr.tau)
+                converged = bool(np.all(np.isfinite(tr.tau)) and stable
+                                 and tr.n_steps >= min_tau_multiple * tr.tau.max())
+                if converged or tr.n_steps >= max_steps:
+                    results[tr.index] = _result(tr, min_acceptance, converged)
+                    if backends is not None:
+                        save_chain(backends[tr.index], tr)
+                    continue
+                # Refit and restart only a chain that mixes slowly: one with a small tau
+                # converges sooner by running on than by starting over.
+                if tr.refits and tr.n_steps >= tr.refits[0] and np.nanmax(tr.tau) > REFIT_MIN_TAU:
+                    tr.refits.pop(0)
+                    tr.restart()
+                keep.append(j)
+            rows = (np.arange(nwalkers) + nwalkers * np.array(keep, dtype=int)[:, None]).ravel()
+            state = emcee.State(state.coords[rows], log_prob=state.log_prob[rows],
+                                random_state=state.random_state)
+            running = [running[j] for j in keep]
+    except Exception as exc:  # every trial still running reports it; none is lost silently
+        for tr in running:
+            results[tr.index] = exc
     return results
