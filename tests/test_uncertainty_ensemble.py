@@ -89,32 +89,56 @@ def test_trials_in_a_batch_are_reproducible_from_the_seed(rng):
         np.testing.assert_array_equal(ca.samples, cb.samples)
 
 
-def test_t_mixture_density_matches_scipy_and_its_draws(rng):
+def test_laplace_t_density_matches_scipy_and_its_draws(rng):
     from scipy import stats
 
-    from frictionfit.uncertainty._proposal import TMixture
+    from frictionfit.uncertainty._proposal import Proposal, Proposals
 
     mean, cov = np.array([1.0, -2.0]), np.array([[2.0, 0.6], [0.6, 0.5]])
-    mix = TMixture.gaussian_t(mean, cov, df=5.0)
-    x = rng.normal(size=(7, 2))
-    np.testing.assert_allclose(mix.logpdf(x), stats.multivariate_t(mean, cov, df=5).logpdf(x),
-                               rtol=1e-10)
-    draws = mix.rvs(20000, np.random.RandomState(0))
+    prop = Proposals([Proposal.from_laplace(mean, cov, df=5.0)])
+    x = rng.normal(size=(1, 7, 2))
+    exact = stats.multivariate_t(mean, cov, df=5).logpdf(x[0])
+    np.testing.assert_allclose(prop.logpdf(x)[0], exact, rtol=1e-10)
+    draws = prop.rvs(20000, np.random.RandomState(0))[0]
     np.testing.assert_allclose(np.cov(draws.T), cov * 5 / 3, rtol=0.1)
 
 
 def test_ridge_map_is_an_inverse_pair_and_straightens_a_banana(rng):
-    from frictionfit.uncertainty._proposal import MappedT, RidgeMap, TMixture
+    from frictionfit.uncertainty._proposal import MultivariateT, Proposal, Proposals, RidgeMap
 
     s = rng.normal(size=4000)
     draws = np.stack([s, 0.8 * s**2 + 0.05 * rng.normal(size=s.size)], axis=1)
     ridge = RidgeMap.fit(draws)
-    assert ridge is not None and ridge.r == 0
+    assert ridge.r == 0
     np.testing.assert_allclose(ridge.inverse(ridge.forward(draws)), draws, atol=1e-12)
     assert np.std(ridge.forward(draws)[:, 1]) < 0.1  # the curved ridge is now straight
-    prop = MappedT.fit(draws, TMixture.gaussian_t(draws.mean(0), np.cov(draws.T)))
+    laplace = MultivariateT(draws.mean(0), np.cov(draws.T))
+    prop = Proposals([Proposal.fit(draws, laplace)])
     x = prop.rvs(5, np.random.RandomState(1))
-    assert x.shape == (5, 2) and np.all(np.isfinite(prop.logpdf(x)))
+    assert x.shape == (1, 5, 2) and np.all(np.isfinite(prop.logpdf(x)))
+    np.testing.assert_allclose(prop.inverse(prop.forward(x)), x, atol=1e-12)
+
+
+def test_stacked_proposals_score_and_move_each_trial_as_its_own(rng):
+    """Trials stacked into one Proposals give each trial the density it has alone."""
+    from frictionfit.uncertainty._proposal import MultivariateT, Proposal, Proposals
+
+    singles = []
+    for k in range(3):
+        s = rng.normal(size=2000)
+        draws = np.stack([s + k, (0.5 + k) * s**2 + 0.1 * rng.normal(size=s.size),
+                          rng.normal(size=s.size)], axis=1)
+        laplace = MultivariateT(draws.mean(0), np.cov(draws.T))
+        singles.append(Proposal.from_laplace(draws.mean(0), np.cov(draws.T)) if k == 0
+                       else Proposal.fit(draws, laplace))
+    stacked = Proposals(singles)
+    x = stacked.rvs(6, np.random.RandomState(2))
+    for k, single in enumerate(singles):
+        np.testing.assert_allclose(stacked.logpdf(x)[k], Proposals([single]).logpdf(x[k:k + 1])[0],
+                                   rtol=1e-12)
+    new, factor = stacked.independence(x.reshape(-1, 3), np.random.RandomState(3))
+    np.testing.assert_allclose(factor, (stacked.logpdf(x) - stacked.logpdf(
+        new.reshape(x.shape))).ravel())
 
 
 def test_sampling_coordinates_carry_the_same_posterior():

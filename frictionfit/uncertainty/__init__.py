@@ -123,10 +123,15 @@ EVAL_CHUNK = 256
 
 
 def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
-               sampling: bool = False):
+               max_rows: int, sampling: bool = False):
     """``evaluate(U, idx)`` for the sampler: the rows cut into chunks of at most
     :data:`EVAL_CHUNK` (padded to a power of two, so few shapes compile), evaluated
-    on ``workers`` threads of ``pool`` (a JAX call releases the GIL)."""
+    on ``workers`` threads of ``pool`` (a JAX call releases the GIL).
+
+    Every chunk shape up to ``max_rows`` rows is compiled here, before sampling: the
+    rows shrink as trials converge, and each new shape would otherwise stall the
+    sampler for ~0.7 s of compilation in the middle of a run.
+    """
     f = logp_rows(model, sampling)
 
     def chunk(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -143,6 +148,10 @@ def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
         return np.concatenate(list(pool.map(chunk, np.array_split(U, parts),
                                             np.array_split(idx, parts))))
 
+    sizes = [32 << k for k in range(EVAL_CHUNK.bit_length()) if 32 << k <= EVAL_CHUNK
+             and 32 << k < 2 * max_rows]
+    list(pool.map(lambda n: chunk(np.zeros((n, model.n_params)), np.zeros(n, dtype=int)),
+                  sizes))
     return evaluate
 
 
@@ -304,7 +313,8 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
                     rho[sel])
     workers = available_cores()
     with ThreadPoolExecutor(workers) as pool:
-        chains = run_lockstep(_evaluator(model, sub, pool, workers, sampling=True), x_mode, covs,
+        evaluate = _evaluator(model, sub, pool, workers, sel.size * nwalkers, sampling=True)
+        chains = run_lockstep(evaluate, x_mode, covs,
                               nwalkers=nwalkers, seed=seed, max_steps=max_steps,
                               check_every=check_every, min_tau_multiple=min_tau_multiple,
                               backends=backends, pilot_steps=pilot_steps)

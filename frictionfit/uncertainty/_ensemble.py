@@ -57,13 +57,7 @@ from dataclasses import dataclass, field
 import emcee
 import numpy as np
 
-from frictionfit.uncertainty._proposal import (
-    MappedT,
-    Propose,
-    TMixture,
-    independence_step,
-    ridge_walk_step,
-)
+from frictionfit.uncertainty._proposal import Proposal, Proposals
 
 #: A chain not converged at a refit point is refitted and restarted only if its largest
 #: tau (steps) exceeds this: at tau 10 the 50-tau rule needs 500 steps, which a better
@@ -113,8 +107,7 @@ class _Trial:
     """The sampling state of one trial: its proposal and its chain so far."""
 
     index: int
-    laplace_t: TMixture
-    proposal: TMixture | MappedT
+    proposal: Proposal
     refits: list[int]
     draws: list[np.ndarray] = field(default_factory=list)  # pilot draws (steps, w, p)
     chain: list[np.ndarray] = field(default_factory=list)  # kept chain blocks
@@ -131,7 +124,8 @@ class _Trial:
         """Add ``draws (steps, w, p)`` to the pilot draws and refit the proposal."""
         self.draws.append(draws)
         p = draws.shape[-1]
-        self.proposal = MappedT.fit(np.concatenate(self.draws).reshape(-1, p), self.laplace_t)
+        self.proposal = Proposal.fit(np.concatenate(self.draws).reshape(-1, p),
+                                     self.proposal.laplace)
 
     def restart(self) -> None:
         """Refit the proposal on the chain so far (its last two thirds) and start anew."""
@@ -141,16 +135,14 @@ class _Trial:
         self.chain, self.log_prob, self.accepted, self.tau = [], [], None, None
 
 
-def _blockwise(steps: list[Propose]) -> emcee.moves.MHMove:
-    """One MH move of the shared ensemble: block ``j`` of walkers proposed by ``steps[j]``."""
-
-    def propose(coords: np.ndarray, random: np.random.RandomState):
-        blocks = [step(c, random) for step, c in zip(steps, np.split(coords, len(steps)),
-                                                       strict=True)]
-        return (np.concatenate([b[0] for b in blocks]),
-                np.concatenate([b[1] for b in blocks]))
-
-    return emcee.moves.MHMove(propose)
+def _moves(running: list[_Trial], independence: float = 1.0) -> list:
+    """emcee moves of the shared ensemble: each walker proposed by its own trial's
+    proposal, independence MH with weight ``independence``, else a ridge walk."""
+    stacked = Proposals([tr.proposal for tr in running])
+    moves = [(emcee.moves.MHMove(stacked.independence), independence)]
+    if independence < 1.0:
+        moves.append((emcee.moves.MHMove(stacked.ridge_walk), 1.0 - independence))
+    return moves
 
 
 def _run(evaluate, running: list[_Trial], nwalkers: int, moves: list, state: emcee.State,
@@ -260,26 +252,23 @@ def run_lockstep(
     """
     n, p = means.shape
     rng = np.random.RandomState(seed)
-    running = []
-    for i in range(n):
-        laplace_t = TMixture.gaussian_t(means[i], covs[i], df=5.0)
-        running.append(_Trial(i, laplace_t, laplace_t, list(refit_at)))
-    coords = np.concatenate([tr.laplace_t.rvs(nwalkers, rng) for tr in running])
+    running = [_Trial(i, Proposal.from_laplace(means[i], covs[i]), list(refit_at))
+               for i in range(n)]
+    coords = Proposals([tr.proposal for tr in running]).rvs(nwalkers, rng).reshape(-1, p)
     state = emcee.State(coords, random_state=rng.get_state())
     results: list[ChainResult | BaseException | None] = [None] * n
     try:
         for stage in range(pilot_stages):
-            moves = [_blockwise([independence_step(tr.proposal) for tr in running])]
-            state, sampler = _run(evaluate, running, nwalkers, moves, state, pilot_steps)
+            state, sampler = _run(evaluate, running, nwalkers, _moves(running), state,
+                                  pilot_steps)
             for tr, block in zip(running, np.split(sampler.get_chain(), n, axis=1),
                                  strict=True):
                 tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
                 tr.n_pilot += pilot_steps
         while running:
             steps = min(check_every, min(max_steps - tr.n_steps for tr in running))
-            moves = [(_blockwise([independence_step(tr.proposal) for tr in running]), 0.8),
-                     (_blockwise([ridge_walk_step(tr.proposal) for tr in running]), 0.2)]
-            state, sampler = _run(evaluate, running, nwalkers, moves, state, steps)
+            state, sampler = _run(evaluate, running, nwalkers, _moves(running, 0.8), state,
+                                  steps)
             m = len(running)
             blocks = zip(running, np.split(sampler.get_chain(), m, axis=1),
                          np.split(sampler.get_log_prob(), m, axis=1),
