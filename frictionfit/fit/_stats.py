@@ -52,46 +52,44 @@ GATED = {"tau": "relax_frac", "tau2": "relax_frac2", "slip_length": "f_static_ex
 GATE_SDS = 2.0
 
 
-def _delta(par, u: float) -> tuple[float, float]:
-    """Physical value and d(physical)/du (central difference of the transform)."""
+def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Physical values and d(physical)/du (central difference of the transform)."""
     h = 1e-6
-    v = float(par.to_physical(np.float64(u)))
-    dv = (float(par.to_physical(np.float64(u + h))) - float(par.to_physical(np.float64(u - h))))
-    return v, dv / (2 * h)
+    u = np.asarray(u, dtype=np.float64)
+    return par.to_physical(u), (par.to_physical(u + h) - par.to_physical(u - h)) / (2 * h)
 
 
-def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
-    """Values, stderr, flags and condition number of one trial (finite inputs)."""
-    p_free = len(free)
-    scale = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
-    scaled = jtj / np.outer(scale, scale)
-    ev = np.linalg.eigvalsh(scaled)
-    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else np.inf
-    cov = redchi * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    corr = cov / np.maximum(np.outer(sd, sd), 1e-300)
-    np.fill_diagonal(corr, 0.0)
-    values, errs, flags = {}, {}, {}
-    pos = dict(zip(free, range(p_free), strict=True))
+def _covariances(jtj: np.ndarray, redchi: np.ndarray):
+    """Per trial (stacked, finite inputs): column scale, condition number of the scaled
+    ``J^T J``, covariance ``redchi pinv(J^T J)``, standard deviations, correlations."""
+    scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
+    ev = np.linalg.eigvalsh(jtj / (scale[:, :, None] * scale[:, None, :]))
+    cond = np.where(ev[:, 0] > 0, ev[:, -1] / np.where(ev[:, 0] > 0, ev[:, 0], 1.0), np.inf)
+    cov = redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
+    var = np.einsum("nii->ni", cov)
+    sd = np.sqrt(np.clip(var, 0.0, None))
+    corr = cov / np.maximum(sd[:, :, None] * sd[:, None, :], 1e-300)
+    corr[:, np.arange(sd.shape[1]), np.arange(sd.shape[1])] = 0.0
+    return scale, cond, var, corr
+
+
+def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
+    """Flags of one trial's parameters (see the module docstring)."""
+    flags = {}
+    pos = dict(zip(free, range(len(free)), strict=True))
     for j, par in enumerate(model.params):
-        v, dv = _delta(par, u[j])
-        values[par.name] = v
         if j not in pos:
-            errs[par.name] = 0.0
             flags[par.name] = "fixed" if par.name in fixed_names else "tied"
             continue
-        jj = pos[j]
-        var = cov[jj, jj]
-        se = abs(dv) * np.sqrt(var) if var >= 0 and np.isfinite(var) else np.nan
-        errs[par.name] = float(se)
-        partner = int(np.argmax(np.abs(corr[jj]))) if p_free > 1 else jj
+        jj, v, se = pos[j], values[par.name], errs[par.name]
+        partner = int(np.argmax(np.abs(corr[jj]))) if len(free) > 1 else jj
         if par.at_bound(v):
             flags[par.name] = "at bound"
         elif not np.isfinite(se) or scale[jj] < 1e-12:
             flags[par.name] = "singular"
         elif par.transform != "identity" and se > abs(v):
             flags[par.name] = "stderr > value"
-        elif p_free > 1 and abs(corr[jj, partner]) > CORRELATED:
+        elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
     for shape, size in GATED.items():
         if shape in flags or size not in values or shape not in values:
@@ -99,7 +97,7 @@ def _one(model: ContactModel, u, jtj, redchi, free, fixed_names):
         lower = PARAMS[size].lower
         if not values[size] - GATE_SDS * errs[size] > lower + 1e-12 * max(abs(lower), 1.0):
             flags[shape] = f"{size} not distinguishable from {lower:g}"
-    return values, errs, flags, cond
+    return flags
 
 
 #: Samples of sticking below which the stiffness is not measured (only bounded below).
@@ -173,26 +171,33 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     m2 = ar1_deviance(resid, mask)
     aic = m2 + 2 * (p + 1)
     bic = m2 + (p + 1) * np.log(np.maximum(n, 1.0))
-    values, stderrs, flags, conds = [], [], [], []
+    names = model.param_names
+    ok = (np.all(np.isfinite(jtj), axis=(1, 2)) & np.all(np.isfinite(u), axis=1)
+          & np.isfinite(chi2))
+    chi2[~ok] = np.nan
+    phys, slope = zip(*(_delta(par, np.nan_to_num(u[:, j])) for j, par in enumerate(model.params)),
+                      strict=True)
+    n_trials = u.shape[0]
+    scale, var = np.full((n_trials, p), np.nan), np.full((n_trials, p), np.nan)
+    corr, cond = np.zeros((n_trials, p, p)), np.full(n_trials, np.inf)
+    if ok.any():
+        scale[ok], cond[ok], var[ok], corr[ok] = _covariances(jtj[ok], redchi[ok])
+    pos = {j: jj for jj, j in enumerate(free)}
+    sd = np.sqrt(np.where(var >= 0, var, np.nan))
+    se = np.stack([np.abs(slope[j]) * sd[:, pos[j]] if j in pos else np.zeros(n_trials)
+                   for j in range(model.n_params)], axis=1)
+    values, stderrs, flags = [], [], []
     for i in range(u.shape[0]):
-        if not (np.all(np.isfinite(jtj[i])) and np.all(np.isfinite(u[i]))
-                and np.isfinite(chi2[i])):
-            # Non-finite Jacobian: this trial's statistics are undefined; flag, don't raise.
-            names = model.param_names
-            values.append({nm: float(par.to_physical(np.float64(np.nan_to_num(u[i, j]))))
-                           for j, (nm, par) in enumerate(zip(names, model.params, strict=True))})
+        values.append({nm: float(phys[j][i]) for j, nm in enumerate(names)})
+        if not ok[i]:  # non-finite Jacobian: statistics undefined; flag, don't raise
             stderrs.append(dict.fromkeys(names, np.nan))
             flags.append(dict.fromkeys(names, "singular"))
-            conds.append(np.inf)
-            chi2[i] = np.nan
             continue
-        v, e, f, c = _one(model, u[i], jtj[i], redchi[i], free, set(fixed_names))
-        values.append(v)
-        stderrs.append(e)
-        flags.append(f)
-        conds.append(c)
+        stderrs.append({nm: float(se[i, j]) for j, nm in enumerate(names)})
+        flags.append(_flags(model, values[i], stderrs[i], scale[i], corr[i], free,
+                            set(fixed_names)))
     return dict(values=values, stderr=stderrs, flags=flags, chi2=chi2, redchi=redchi,
-                aic=aic, bic=bic, cond=np.asarray(conds))
+                aic=aic, bic=bic, cond=cond)
 
 
 def choose(bic: pd.DataFrame) -> list[str]:
