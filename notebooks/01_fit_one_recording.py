@@ -139,7 +139,7 @@ display(Image(filename=FIGURES / "corner.png"))
 # 0.62 s, both flagged not identifiable (true ~40 N/mm, 0.149 s); the data pull the movement
 # five prior sd away (likely because the simulator's drive has an acceleration phase, and its
 # law a viscous drag, that our model lacks). Refitted alone, the same motion lands at ramp
-# 0.12 s and k ~100 N/mm, and Laplace and emcee agree on k (107 +/- 63 and 97 +/- 75 N/mm;
+# 0.12 s and k ~100 N/mm, and Laplace and emcee agree on k (108 +/- 63 and 101 +/- 94 N/mm;
 # emcee not converged in 2000 steps). Kinetic friction (0.50-0.71 N across these fits, true
 # 0.58 N) and the motor delay (25-28 ms, true 24 ms) are the numbers to trust most: read only
 # unflagged parameters.

@@ -13,9 +13,9 @@ method, not the fit's local minima. Then
   whose true value lies in the 68 % (16-84 %) and 95 % (2.5-97.5 %) intervals, for
   Laplace and for emcee (converged trials only, or all of them when none converged,
   as ``emcee_coverage_over`` says; the converged rate is reported),
-  and per parameter, to show where Laplace fails; and Laplace again with the ``ramp``
-  prior matched to the simulator's spread of true values (intervals are calibrated
-  for truths drawn from the prior; the default prior is wider). emcee's time per
+  and per parameter, to show where Laplace fails; and Laplace and emcee again with the
+  ``ramp`` prior matched to the simulator's spread of true values (intervals are
+  calibrated for truths drawn from the prior; the default prior is wider). emcee's time per
   trial is the wall time of a lockstep batch divided by its trials, median over
   ``n_batches`` batches (compile time apart; the load average is recorded with it);
 - **downstream**: simulated measurements of library materials (a few motions each,
@@ -232,6 +232,9 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
     matched = _simulator_ramp_prior()
     _, m_fit = _fitted(model, n_cal, seed + 1000, priors={"ramp": matched})
     cov_matched = coverage(_posterior(cal_ts, m_fit, "laplace", seed), cal_ts.truth)
+    sub_m_ts, sub_m_fit = _subset(cal_ts, m_fit, 0, n_mc)
+    mc_matched = _posterior(sub_m_ts, sub_m_fit, "emcee", seed, max_steps=cap)
+    cov_mc_matched = coverage(mc_matched, sub_m_ts.truth)
     mc_over = "converged trials"
     if not mc.converged.any():  # e.g. quick mode: say so rather than report NaN
         cov_mc, mc_over = coverage(mc, sub_ts.truth, only_converged=False), "all (none converged)"
@@ -258,6 +261,11 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
         "coverage95_laplace_matched_prior": cov_matched["coverage95"],
         "laplace_matched_prior_coverage_by_param": {
             k: cov_matched[k] for k in ("coverage68_by_param", "coverage95_by_param")},
+        "coverage68_emcee_matched_prior": cov_mc_matched["coverage68"],
+        "coverage95_emcee_matched_prior": cov_mc_matched["coverage95"],
+        "emcee_matched_prior_converged_rate": float(np.mean(mc_matched.converged)),
+        "emcee_matched_prior_coverage_by_param": {
+            k: cov_mc_matched[k] for k in ("coverage68_by_param", "coverage95_by_param")},
         "emcee_converged_rate": float(np.mean(mc.converged)),
         "emcee_coverage_over": mc_over,
         "emcee_coverage_n_trial_params": cov_mc["n_trial_params"],
