@@ -194,7 +194,8 @@ def sample_posterior(
         emcee step cap (of the kept chain), steps between tau checks, required chain
         length in tau.
     seed : int
-        Seed of the walkers' start and moves (trial ``i`` uses ``seed + i``).
+        Seed of the walkers' start and moves: one random stream for the whole batch, so
+        a trial's draws depend on which trials share its batch (deterministic given both).
     chains_path : path, optional
         Save emcee chains to this HDF5 file (one group ``trial_<i>`` per trial), in
         sampling coordinates (log of log-scaled parameters: see ``_logpost``).
