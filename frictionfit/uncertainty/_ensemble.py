@@ -64,7 +64,7 @@ from frictionfit.uncertainty._proposal import Proposal, Proposals
 #: proposal can shorten; at tau ~3.5 (median on 200 relaxation trials) 175 steps will do.
 REFIT_MIN_TAU = 10.0
 
-__all__ = ["ChainResult", "integrated_time", "run_lockstep", "save_chain"]
+__all__ = ["ChainResult", "integrated_time", "run_lockstep"]
 
 
 @dataclass
@@ -189,7 +189,7 @@ def _result(tr: _Trial, min_acceptance: float, converged: bool) -> ChainResult:
                        converged and acceptance >= min_acceptance, tr.n_pilot)
 
 
-def save_chain(backend: emcee.backends.HDFBackend, tr: _Trial) -> None:
+def _save_chain(backend: emcee.backends.HDFBackend, tr: _Trial) -> None:
     """Write a trial's kept chain to an emcee HDF5 backend (read back with its API)."""
     chain, log_prob = np.concatenate(tr.chain), np.concatenate(tr.log_prob)
     backend.reset(chain.shape[1], chain.shape[2])
@@ -286,7 +286,7 @@ def run_lockstep(
                 if converged or tr.n_steps >= max_steps:
                     results[tr.index] = _result(tr, min_acceptance, converged)
                     if backends is not None:
-                        save_chain(backends[tr.index], tr)
+                        _save_chain(backends[tr.index], tr)
                     continue
                 # Refit and restart only a chain that mixes slowly: one with a small tau
                 # converges sooner by running on than by starting over.

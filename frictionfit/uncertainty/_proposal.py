@@ -109,7 +109,7 @@ class Proposal:
         """Fit to ``draws (n, p)``: a ridge map, then a t with ``df`` whose covariance is
         ``inflate`` times the straightened draws'; ``weight`` of the Laplace t mixed in."""
         draws = draws[np.all(np.isfinite(draws), axis=1)]
-        ridge = RidgeMap.fit(draws, deg) if deg > 0 else RidgeMap.identity(draws.shape[1], 2)
+        ridge = RidgeMap.fit(draws, deg) if deg > 0 else RidgeMap.identity(draws.shape[1])
         z = ridge.forward(draws)
         inner = MultivariateT.with_covariance(z.mean(axis=0), inflate * np.cov(z, rowvar=False), df)
         return cls(ridge, inner, laplace, weight)
