@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from frictionfit.uncertainty._ensemble import run_lockstep
 
@@ -61,6 +62,27 @@ def test_an_evaluation_error_reaches_every_trial_without_hanging(rng):
 
     chains = run_lockstep(broken, np.zeros((3, 2)), np.stack([np.eye(2)] * 3), nwalkers=6)
     assert all(isinstance(c, RuntimeError) and "blew up" in str(c) for c in chains)
+
+
+@pytest.mark.parametrize("stage", ["pilot", "chain"])
+def test_one_trials_failure_stays_with_that_trial(rng, monkeypatch, stage):
+    from frictionfit.uncertainty import _ensemble
+
+    evaluate, mean, cov = _linear_gaussian(rng, n_trials=3)
+    real = _ensemble._Trial.refit if stage == "pilot" else _ensemble._Trial.restart
+
+    def broken(self, *args):
+        if self.index == 1:
+            raise np.linalg.LinAlgError("degenerate draws")
+        return real(self, *args)
+
+    monkeypatch.setattr(_ensemble._Trial, "refit" if stage == "pilot" else "restart", broken)
+    # A chain restarts only if tau > REFIT_MIN_TAU at a refit point: lower it so all do at 25
+    monkeypatch.setattr(_ensemble, "REFIT_MIN_TAU", -1.0)
+    chains = run_lockstep(evaluate, mean, cov, nwalkers=8, seed=0, max_steps=4000,
+                          refit_at=(25,))
+    assert isinstance(chains[1], np.linalg.LinAlgError)
+    assert chains[0].converged and chains[2].converged
 
 
 def test_one_call_per_step_holds_every_running_trial_until_it_stops(rng):

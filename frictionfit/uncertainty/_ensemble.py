@@ -176,6 +176,42 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     return taus[window, np.arange(p)]
 
 
+def _by_trial(a: np.ndarray, running: list[_Trial], axis: int = 1) -> list[np.ndarray]:
+    """The running trials' blocks of an ensemble array (walkers along ``axis``)."""
+    return np.split(a, len(running), axis=axis)
+
+
+def _keep(state: emcee.State, running: list[_Trial], keep: list[int], nwalkers: int):
+    """The ensemble state and trial list reduced to the running trials ``keep``."""
+    rows = (np.arange(nwalkers) + nwalkers * np.array(keep, dtype=int)[:, None]).ravel()
+    return (emcee.State(state.coords[rows], log_prob=state.log_prob[rows],
+                        random_state=state.random_state), [running[j] for j in keep])
+
+
+def _extend(tr: _Trial, chain, log_prob, accepted, max_steps, min_tau_multiple, tau_rtol,
+            min_acceptance) -> ChainResult | None:
+    """Add a block of steps to a trial's chain; its result when it stops, else None.
+
+    Converged: at least ``min_tau_multiple`` tau and tau within ``tau_rtol`` of the
+    previous check. A chain that mixes slowly is refitted and restarted at the refit
+    points (only then: one with a small tau converges sooner by running on).
+    """
+    tr.chain.append(chain)
+    tr.log_prob.append(log_prob)
+    tr.accepted = accepted if tr.accepted is None else tr.accepted + accepted
+    tau_old = np.full(chain.shape[-1], np.inf) if tr.tau is None else tr.tau
+    tr.tau = integrated_time(np.concatenate(tr.chain))
+    stable = np.all(np.abs(tau_old - tr.tau) < tau_rtol * tr.tau)
+    converged = bool(np.all(np.isfinite(tr.tau)) and stable
+                     and tr.n_steps >= min_tau_multiple * tr.tau.max())
+    if converged or tr.n_steps >= max_steps:
+        return _result(tr, min_acceptance, converged)
+    if tr.refits and tr.n_steps >= tr.refits[0] and np.any(tr.tau > REFIT_MIN_TAU):
+        tr.refits.pop(0)
+        tr.restart()
+    return None
+
+
 def _result(tr: _Trial, min_acceptance: float, converged: bool) -> ChainResult:
     chain = np.concatenate(tr.chain)
     tau = tr.tau
@@ -259,46 +295,43 @@ def run_lockstep(
     results: list[ChainResult | BaseException | None] = [None] * n
     try:
         for stage in range(pilot_stages):
+            if not running:
+                break
             state, sampler = _run(evaluate, running, nwalkers, _moves(running), state,
                                   pilot_steps)
-            for tr, block in zip(running, np.split(sampler.get_chain(), n, axis=1),
-                                 strict=True):
-                tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
+            keep = []
+            for j, (tr, block) in enumerate(zip(running, _by_trial(sampler.get_chain(), running),
+                                                strict=True)):
+                try:
+                    tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
+                except Exception as exc:  # this trial's failure, not the batch's
+                    results[tr.index] = exc
+                    continue
                 tr.n_pilot += pilot_steps
+                keep.append(j)
+            state, running = _keep(state, running, keep, nwalkers)
         while running:
             steps = min(check_every, min(max_steps - tr.n_steps for tr in running))
             state, sampler = _run(evaluate, running, nwalkers, _moves(running, 0.8), state,
                                   steps)
-            m = len(running)
-            blocks = zip(running, np.split(sampler.get_chain(), m, axis=1),
-                         np.split(sampler.get_log_prob(), m, axis=1),
-                         np.split(sampler.backend.accepted, m), strict=True)
+            blocks = zip(running, _by_trial(sampler.get_chain(), running),
+                         _by_trial(sampler.get_log_prob(), running),
+                         _by_trial(sampler.backend.accepted, running, axis=0), strict=True)
             keep = []
             for j, (tr, chain, log_prob, accepted) in enumerate(blocks):
-                tr.chain.append(chain)
-                tr.log_prob.append(log_prob)
-                tr.accepted = accepted if tr.accepted is None else tr.accepted + accepted
-                tau_old = np.full(p, np.inf) if tr.tau is None else tr.tau
-                tr.tau = integrated_time(np.concatenate(tr.chain))
-                stable = np.all(np.abs(tau_old - tr.tau) < tau_rtol * tr.tau)
-                converged = bool(np.all(np.isfinite(tr.tau)) and stable
-                                 and tr.n_steps >= min_tau_multiple * tr.tau.max())
-                if converged or tr.n_steps >= max_steps:
-                    results[tr.index] = _result(tr, min_acceptance, converged)
-                    if backends is not None:
+                try:
+                    done = _extend(tr, chain, log_prob, accepted, max_steps, min_tau_multiple,
+                                   tau_rtol, min_acceptance)
+                    if done is not None and backends is not None:
                         _save_chain(backends[tr.index], tr)
-                    continue
-                # Refit and restart only a chain that mixes slowly: one with a small tau
-                # converges sooner by running on than by starting over.
-                if tr.refits and tr.n_steps >= tr.refits[0] and np.nanmax(tr.tau) > REFIT_MIN_TAU:
-                    tr.refits.pop(0)
-                    tr.restart()
-                keep.append(j)
-            rows = (np.arange(nwalkers) + nwalkers * np.array(keep, dtype=int)[:, None]).ravel()
-            state = emcee.State(state.coords[rows], log_prob=state.log_prob[rows],
-                                random_state=state.random_state)
-            running = [running[j] for j in keep]
-    except Exception as exc:  # every trial still running reports it; none is lost silently
+                except Exception as exc:  # this trial's failure, not the batch's
+                    done = exc
+                if done is None:
+                    keep.append(j)
+                else:
+                    results[tr.index] = done
+            state, running = _keep(state, running, keep, nwalkers)
+    except Exception as exc:  # the shared evaluation failed: every running trial reports it
         for tr in running:
             results[tr.index] = exc
     return results
