@@ -29,6 +29,13 @@ from sklearn.svm import SVC
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_is_fitted, validate_data
 
+from frictionfit.calibration import (
+    CalibratedPipeline,
+    accuracy_at_coverage,
+    expected_calibration_error,
+    feature_draws,
+    top_classes,
+)
 from frictionfit.errors import DatasetError
 from frictionfit.features import make_features
 from frictionfit.recording import Recording
@@ -68,16 +75,21 @@ PROTOCOLS = {
 CONDITIONS = ("layers", "material", "session", "person", "repetition", "pressure", "speed")
 
 
-def make_classifier(name: str = "svm-ovo", *, seed: int = 0):
+def make_classifier(name: str = "svm-ovo", *, seed: int = 0, probability: bool = False):
     """A fresh classifier by its command-line name.
 
     ``svm-ovo``: RBF SVM, one-vs-one, ``gamma="scale"`` (kernel width from the data);
     ``svm-ova``: the same SVM one-vs-all; ``svm-poly``: cubic polynomial kernel;
     ``svm-quadratic``: quadratic kernel; ``knn``: distance-weighted 10 nearest
     neighbours; ``mlp``: a fully connected network (100 ReLU units, Adam, early stopping).
-    All SVMs use ``C=10``; only ``knn`` and ``mlp`` give ``predict_proba``.
+    All SVMs use ``C=10``; with ``probability=True`` they also give ``predict_proba``
+    (libsvm's Platt scaling, fitted by an internal 5-fold split), which
+    :class:`~frictionfit.calibration.CalibratedPipeline` then calibrates on held-out
+    sessions; ``knn`` and ``mlp`` always give it.
     """
     def svc(**kw):
+        if probability:  # scikit-learn >= 1.9 warns whenever the flag is given
+            kw["probability"] = True
         return SVC(C=10.0, gamma="scale", random_state=seed, **kw)
 
     if name == "svm-ovo":
@@ -98,7 +110,7 @@ def make_classifier(name: str = "svm-ovo", *, seed: int = 0):
 
 def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, seed: int = 0,
                   normalise_by: str | None = "session", project: str | None = None,
-                  **feature_params) -> Pipeline:
+                  probability: bool = False, **feature_params) -> Pipeline:
     """``features -> StandardScaler -> [projection ->] classifier`` from command-line names.
 
     With ``normalise_by`` (default ``"session"``) the features are standardised
@@ -110,8 +122,8 @@ def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, se
     classifier's kernel then measures distances in units of the within-class
     scatter — repetitions, measurements and days of one material — instead of raw
     feature units. ``None`` (default) leaves the projection out;
-    :func:`projection_for` chooses one for a dataset.
-    ``feature_params`` go to the feature sets that take them.
+    :func:`projection_for` chooses one for a dataset. ``probability``: see
+    :func:`make_classifier`. ``feature_params`` go to the feature sets that take them.
 
     Examples
     --------
@@ -127,7 +139,8 @@ def make_pipeline(features: str = "physical", classifier: str = "svm-ovo", *, se
     elif project is not None:
         raise ValueError(f"unknown projection {project!r}; choose 'lda' or None "
                          f"(projection_for resolves 'auto' for a dataset)")
-    return Pipeline([*steps, ("classifier", make_classifier(classifier, seed=seed))])
+    return Pipeline([*steps, ("classifier", make_classifier(classifier, seed=seed,
+                                                            probability=probability))])
 
 
 def projection_for(recordings: Sequence[Recording], project: str | None = "auto",
@@ -230,6 +243,20 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         raw = self.features_.transform(X)
         return self._normalised(raw, self._groups(X)) if self.active_ else raw
 
+    def transform_draws(self, X, n_draws: int, rng: np.random.Generator) -> np.ndarray:
+        """Posterior draws of the features (see :func:`~frictionfit.calibration.feature_draws`),
+        each standardised like :meth:`transform`; ``(n_draws, n, n_features)``."""
+        X = list(X)
+        draws = feature_draws(self.features_, X, n_draws, rng)
+        if not self.active_:
+            return draws
+        groups = self._groups(X)
+        normalised = [self._normalised(draws[0], groups)]
+        with warnings.catch_warnings():  # its warning once per call, not once per draw
+            warnings.simplefilter("ignore", UserWarning)
+            normalised += [self._normalised(d, groups) for d in draws[1:]]
+        return np.stack(normalised)
+
     def _groups(self, X) -> np.ndarray:
         return np.asarray([r.metadata.get(self.key) for r in X], dtype=object)
 
@@ -316,11 +343,15 @@ class Evaluation:
     confusion : DataFrame
         Counts, true labels as rows, predicted as columns.
     predictions : DataFrame
-        One row per test recording: ``recording``, ``fold``, ``true``, ``predicted``
-        and the metadata of :data:`CONDITIONS` present.
+        One row per test recording: ``recording``, ``fold``, ``true``, ``predicted``, the
+        metadata of :data:`CONDITIONS` present and, when calibrated, ``probability`` (of
+        the predicted class) and the top three classes ``top1..3`` with ``p1..3``.
     breakdown : dict of str -> DataFrame
         Per condition key, accuracy and count per value.
     fold_accuracy : list of float
+    probabilities : DataFrame or None
+        Calibrated class probabilities, one row per row of ``predictions``, one column per
+        class (classes absent from a fold's training data have probability 0).
     """
 
     accuracy: float
@@ -329,6 +360,7 @@ class Evaluation:
     predictions: pd.DataFrame
     breakdown: dict[str, pd.DataFrame] = field(default_factory=dict)
     fold_accuracy: list[float] = field(default_factory=list)
+    probabilities: pd.DataFrame | None = None
 
     def derived_accuracy(self, key: str, recordings: Sequence[Recording]) -> float:
         """Accuracy of a property of the label (e.g. ``layers``) read off the predicted label."""
@@ -337,11 +369,27 @@ class Evaluation:
         true = self.predictions["true"].map(of_label)
         return float(np.mean(pred.to_numpy() == true.to_numpy()))
 
+    @property
+    def correct(self) -> np.ndarray:
+        """Per test recording, whether the prediction is right."""
+        return (self.predictions["true"].astype(str)
+                == self.predictions["predicted"].astype(str)).to_numpy()
+
+    def calibration(self, coverage: float = 0.9, n_bins: int = 15) -> dict[str, float]:
+        """``ece`` (top-class probability, ``n_bins`` bins) and ``accuracy_at_<coverage>``
+        (on the most confident recordings); empty without probabilities."""
+        if "probability" not in self.predictions:
+            return {}
+        conf = self.predictions["probability"].to_numpy()
+        return {"ece": expected_calibration_error(conf, self.correct, n_bins),
+                f"accuracy_at_{coverage:g}": accuracy_at_coverage(conf, self.correct, coverage)}
+
 
 def evaluate(recordings: Sequence[Recording], features="physical", classifier: str = "svm-ovo",
              protocol: str = "kfold", *, target: str = "label", seed: int = 0,
              n_splits: int = 5, project: str | None = "auto",
-             pipeline: Pipeline | None = None) -> Evaluation:
+             pipeline: Pipeline | None = None, calibrate: bool = True,
+             n_draws: int = 32) -> Evaluation:
     """Train and test ``features -> scaler -> [projection ->] classifier``; pooled scores.
 
     Parameters
@@ -359,6 +407,11 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
         The metadata key to predict (e.g. ``"layers"`` for the layer-count decision).
     pipeline : Pipeline, optional
         Cloned for every fold instead of building one from the names.
+    calibrate : bool, default True
+        Wrap each fold's pipeline in :class:`~frictionfit.calibration.CalibratedPipeline`
+        (probabilities calibrated on the training sessions held out in turn, averaged
+        over ``n_draws`` posterior draws where the features have them); predictions
+        are then the most probable classes.
 
     Examples
     --------
@@ -368,21 +421,39 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
     recordings = list(recordings)
     y = labels_of(recordings, target)
     template = pipeline if pipeline is not None else make_pipeline(
-        features, classifier, seed=seed, project=projection_for(recordings, project))
-    rows, fold_acc = [], []
+        features, classifier, seed=seed, project=projection_for(recordings, project),
+        probability=calibrate)
+    if calibrate:
+        template = CalibratedPipeline(template, n_draws=n_draws, seed=seed)
+    rows, fold_acc, proba_rows = [], [], []
     for fold, (train, test) in enumerate(splits(recordings, protocol, y, seed=seed,
                                                 n_splits=n_splits)):
         model = clone(template).fit([recordings[i] for i in train], y[train])
-        pred = model.predict([recordings[i] for i in test])
+        tested = [recordings[i] for i in test]
+        if calibrate:
+            proba = model.predict_proba(tested)
+            pred = model.classes_[np.argmax(proba, axis=1)]
+            proba_rows.append(pd.DataFrame(proba, columns=model.classes_.astype(str)))
+        else:
+            pred = model.predict(tested)
         fold_acc.append(float(accuracy_score(y[test].astype(str), pred.astype(str))))
         for i, p in zip(test, pred, strict=True):
             rec = recordings[i]
             rows.append({"recording": rec.name, "fold": fold, "true": y[i], "predicted": p,
                          **{k: rec.metadata[k] for k in CONDITIONS if k in rec.metadata}})
-    return _scored(pd.DataFrame(rows), fold_acc)
+    table = pd.DataFrame(rows)
+    probabilities = None
+    if calibrate:
+        probabilities = pd.concat(proba_rows, ignore_index=True).fillna(0.0)
+        probabilities = probabilities[sorted(probabilities.columns)]
+        top = top_classes(probabilities.to_numpy(), probabilities.columns)
+        table["probability"] = top["p1"].to_numpy()
+        table = pd.concat([table, top], axis=1)
+    return _scored(table, fold_acc, probabilities)
 
 
-def _scored(pred: pd.DataFrame, fold_acc: list[float]) -> Evaluation:
+def _scored(pred: pd.DataFrame, fold_acc: list[float],
+            probabilities: pd.DataFrame | None = None) -> Evaluation:
     true, guess = pred["true"].astype(str), pred["predicted"].astype(str)
     labels = sorted(set(true) | set(guess))
     correct = true == guess
@@ -397,6 +468,7 @@ def _scored(pred: pd.DataFrame, fold_acc: list[float]) -> Evaluation:
         confusion=pd.DataFrame(confusion_matrix(true, guess, labels=labels),
                                index=labels, columns=labels),
         predictions=pred, breakdown=breakdown, fold_accuracy=fold_acc,
+        probabilities=probabilities,
     )
 
 

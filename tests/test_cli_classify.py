@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from frictionfit.calibration import CalibrationWarning
 from frictionfit.cli import app
 from frictionfit.recording import write_recording
 from frictionfit.simulation.measurements import simulate_measurements
@@ -46,11 +47,23 @@ def test_train_then_predict_round_trip(folders, tmp_path):
                                      f"recordings:{test}", "--out", str(out)])
     assert result.exit_code == 0, result.output
     table = pd.read_csv(out)
-    assert list(table.columns) == ["recording", "predicted", "probability", "true"]
+    assert list(table.columns) == ["recording", "predicted", "probability", "true",
+                                   "top1", "p1", "top2", "p2", "top3", "p3"]
     assert sorted(table["recording"]) == sorted(f"s3_{lab}_01" for lab in LABELS)
     assert set(table["predicted"]) <= set(LABELS)
     assert table["probability"].between(0, 1).all()
+    assert (table["predicted"] == table["top1"]).all() and (table["p1"] >= table["p2"]).all()
     assert result.output.strip().splitlines()[-1].startswith("accuracy: ")
+    # --abstain: exactly the recordings whose top probability is below it abstain, said
+    cut = float(table["p1"].max()) + 1e-9 if table["p1"].max() < 1 else 1.0
+    below = int((table["p1"] < cut).sum())
+    with pytest.warns(UserWarning, match="fewer than 10 recordings"):
+        result = runner.invoke(app, ["predict", str(model), "--dataset", f"recordings:{test}",
+                                     "--out", str(out), "--abstain", str(cut)])
+    assert result.exit_code == 0, result.output
+    abstained = pd.read_csv(out)
+    assert ((abstained["predicted"] == "abstain") == (table["p1"] < cut)).all() and below >= 1
+    assert f"abstained on {below} of 3 recordings" in result.output
 
 
 def test_features_table_has_recording_label_groups_then_features(folders, tmp_path):
@@ -64,25 +77,29 @@ def test_features_table_has_recording_label_groups_then_features(folders, tmp_pa
 
 
 def test_evaluate_prints_accuracy_last_and_saves(folders, tmp_path):
-    out, png = tmp_path / "r.csv", tmp_path / "c.png"
-    result = runner.invoke(app, [
-        "evaluate", "--dataset", f"recordings:{folders[0]}", "--features", "handcrafted",
-        "--classifier", "knn", "--protocol", "leave-one-session-out", "--out", str(out),
-        "--confusion", str(png)])
+    out, png, rel, pred = (tmp_path / n for n in ("r.csv", "c.png", "rel.png", "p.csv"))
+    # one training session of 12 recordings per fold: too few to hold 10 neighbours out
+    with pytest.warns(CalibrationWarning, match="not calibrated: Expected n_neighbors"):
+        result = runner.invoke(app, [
+            "evaluate", "--dataset", f"recordings:{folders[0]}", "--features", "handcrafted",
+            "--classifier", "knn", "--protocol", "leave-one-session-out", "--out", str(out),
+            "--confusion", str(png), "--reliability", str(rel), "--predictions", str(pred)])
     assert result.exit_code == 0, result.output
     last = result.output.strip().splitlines()[-1]
     assert last.startswith("accuracy: ") and 0.0 <= float(last.split()[-1]) <= 1.0
     assert list(pd.read_csv(out).columns) == ["features", "classifier", "protocol", "accuracy",
-                                              "macro_f1"]
-    assert png.stat().st_size > 0
+                                              "macro_f1", "ece", "accuracy_at_0.9"]
+    assert png.stat().st_size > 0 and rel.stat().st_size > 0
+    assert {"recording", "true", "predicted", "probability", "top3"} <= set(pd.read_csv(pred))
 
 
 def test_evaluate_all_writes_one_row_per_combination(folders, tmp_path):
     out = tmp_path / "all.csv"
-    result = runner.invoke(app, [
-        "evaluate", "--all", "--dataset", f"recordings:{folders[0]}", "--feature-sets",
-        "handcrafted;fftbins", "--classifiers", "knn,svm-ovo", "--protocols",
-        "leave-one-session-out", "--out", str(out)])
+    with pytest.warns(CalibrationWarning, match="not calibrated"):  # knn: see above
+        result = runner.invoke(app, [
+            "evaluate", "--all", "--dataset", f"recordings:{folders[0]}", "--feature-sets",
+            "handcrafted;fftbins", "--classifiers", "knn,svm-ovo", "--protocols",
+            "leave-one-session-out", "--out", str(out)])
     assert result.exit_code == 0, result.output
     table = pd.read_csv(out)
     assert len(table) == 4 and set(table["features"]) == {"handcrafted", "fftbins"}

@@ -78,10 +78,13 @@ def train(
     project: str = typer.Option("auto", help=PROJECT_HELP),
     out: Path = typer.Option(Path("model.joblib"), help="Where to save the model."),
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
+    calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on the "
+                                   "training sessions held out in turn."),
 ) -> None:
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
     import joblib
 
+    from frictionfit.calibration import CalibratedPipeline
     from frictionfit.classify import labels_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
 
@@ -89,16 +92,19 @@ def train(
     try:
         y = labels_of(recordings)
         pipeline = make_pipeline(features, classifier, seed=seed,
-                                 project=projection_for(recordings, _projection(project)))
-        pipeline.fit(recordings, y)
+                                 project=projection_for(recordings, _projection(project)),
+                                 probability=calibrate)
+        model = CalibratedPipeline(pipeline, seed=seed) if calibrate else pipeline
+        model.fit(recordings, y)
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
+    fitted = model.pipeline_ if calibrate else model
     joblib.dump({
-        "pipeline": pipeline,
+        "pipeline": model,
         "features": features,
         "classifier": classifier,
-        "project": "lda" if "project" in pipeline.named_steps else "none",
-        "feature_names": list(pipeline["features"].get_feature_names_out()),
+        "project": "lda" if "project" in fitted.named_steps else "none",
+        "feature_names": list(fitted["features"].get_feature_names_out()),
         "labels": sorted(map(str, set(y))),
         "n_train": len(recordings),
         "frictionfit_version": _version(),
@@ -125,11 +131,19 @@ def predict(
     model: Path = typer.Argument(..., help="A model saved by `frictionfit train`."),
     dataset: str = typer.Option(..., help=DATASET_HELP),
     out: Path = typer.Option(Path("predictions.csv"), help="Output table (.csv)."),
+    abstain: float = typer.Option(0.0, min=0.0, max=1.0, help="Write 'abstain' as the "
+                                  "prediction where the top probability is below this."),
 ) -> None:
-    """Write recording, predicted, probability (when the classifier gives one) and true label."""
+    """Write recording, predicted, probability, true label and the top-3 classes.
+
+    Probabilities are calibrated (models trained with --calibrate, the default); the
+    prediction is the most probable class, or 'abstain' below --abstain.
+    """
     import joblib
     import numpy as np
     import pandas as pd
+
+    from frictionfit.calibration import top_classes
 
     if not model.is_file():
         _fail(f"model file {model} not found")
@@ -139,19 +153,35 @@ def predict(
     pipeline = saved["pipeline"]
     recordings = _load(dataset)
     try:
-        predicted = pipeline.predict(recordings)
+        if hasattr(pipeline, "predict_proba"):
+            proba = pipeline.predict_proba(recordings)
+            top = top_classes(proba, pipeline.classes_)
+            predicted = top["top1"].to_numpy()
+        else:
+            top, predicted = None, pipeline.predict(recordings)
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
     table = pd.DataFrame({"recording": [r.name for r in recordings], "predicted": predicted})
-    if hasattr(pipeline, "predict_proba"):
-        table["probability"] = pipeline.predict_proba(recordings).max(axis=1)
+    if top is not None:
+        table["probability"] = top["p1"].to_numpy()
+        if abstain > 0:
+            table["predicted"] = np.where(table["probability"] < abstain, "abstain",
+                                          table["predicted"].astype(object))
     labels = [r.label for r in recordings]
     if all(lab is not None for lab in labels):
         table["true"] = labels
+    if top is not None:
+        table = pd.concat([table, top], axis=1)
     table.to_csv(out, index=False)
     typer.echo(f"{len(table)} predictions -> {out}")
     if "true" in table:
-        acc = float(np.mean(table["true"].astype(str) == table["predicted"].astype(str)))
+        decided = table["predicted"].astype(str) != "abstain"
+        acc = float(np.mean(table["true"].astype(str)[decided]
+                            == table["predicted"].astype(str)[decided])) if decided.any() else 0.0
+        if not decided.all():
+            typer.echo(f"abstained on {int((~decided).sum())} of {len(table)} recordings "
+                       f"(top probability below {abstain:g}); accuracy over the "
+                       f"{int(decided.sum())} decided")
         typer.echo(f"accuracy: {acc:.3f}")
 
 
@@ -165,6 +195,12 @@ def evaluate(
     target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),
     out: Path = typer.Option(None, help="Save the scores (.csv)."),
     confusion: Path = typer.Option(None, help="Save the confusion matrix (.png)."),
+    reliability: Path = typer.Option(None, help="Save the reliability diagram and the "
+                                     "accuracy against coverage (.png)."),
+    predictions: Path = typer.Option(None, help="Save every test recording's prediction, "
+                                     "probability and top-3 classes (.csv)."),
+    calibrate: bool = typer.Option(True, help="Calibrated class probabilities (held-out "
+                                   "sessions; posterior draws where the features have them)."),
     all_: bool = typer.Option(False, "--all", help="Every feature set x classifier x protocol "
                               "(defaults per dataset kind; or the --feature-sets, "
                               "--classifiers, --protocols lists)."),
@@ -198,16 +234,19 @@ def evaluate(
     rows = []
     for f, c, p in combos:
         try:
-            ev = run(recordings, f, c, p, target=target, seed=seed, project=projection)
+            ev = run(recordings, f, c, p, target=target, seed=seed, project=projection,
+                     calibrate=calibrate)
         except (FrictionfitError, ValueError, ImportError) as exc:
             if not all_:
                 _fail(str(exc))
             typer.echo(f"skipped {f} / {c} / {p}: {exc}", err=True)
             continue
+        scores = ev.calibration()
         rows.append({"features": f, "classifier": c, "protocol": p,
-                     "accuracy": ev.accuracy, "macro_f1": ev.macro_f1})
+                     "accuracy": ev.accuracy, "macro_f1": ev.macro_f1, **scores})
+        shown = "".join(f"  {k} {v:.3f}" for k, v in scores.items())
         typer.echo(f"{f:>20} {c:>14} {p:>26}  accuracy {ev.accuracy:.3f}  "
-                   f"macro-F1 {ev.macro_f1:.3f}")
+                   f"macro-F1 {ev.macro_f1:.3f}{shown}")
     if not rows:
         _fail("no combination could be evaluated")
     table = pd.DataFrame(rows)
@@ -217,6 +256,15 @@ def evaluate(
     if confusion is not None and not all_:
         _plot_confusion(ev.confusion, confusion, f"{features} / {classifier} / {protocol}")
         typer.echo(f"confusion matrix -> {confusion}")
+    if predictions is not None and not all_:
+        ev.predictions.to_csv(predictions, index=False)
+        typer.echo(f"predictions -> {predictions}")
+    if reliability is not None and not all_ and "probability" in ev.predictions:
+        from frictionfit.calibration import plot_reliability
+
+        plot_reliability(ev.predictions["probability"], ev.correct, reliability,
+                         f"{features} / {classifier} / {protocol}")
+        typer.echo(f"reliability diagram -> {reliability}")
     if not all_:
         typer.echo(f"macro-F1: {ev.macro_f1:.3f}")
         typer.echo(f"accuracy: {ev.accuracy:.3f}")

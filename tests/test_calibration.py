@@ -1,0 +1,153 @@
+"""Calibrated class probabilities: scores of calibration, the calibrated pipeline, draws."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.base import BaseEstimator, TransformerMixin
+
+from frictionfit.calibration import (
+    CalibratedPipeline,
+    accuracy_at_coverage,
+    coverage_curve,
+    expected_calibration_error,
+    feature_draws,
+    plot_reliability,
+    reliability_table,
+    top_classes,
+)
+from frictionfit.classify import evaluate, make_pipeline
+from frictionfit.recording import Recording
+
+pytestmark = pytest.mark.usefixtures("feature_cache")
+
+
+def test_ece_is_zero_when_confidence_equals_accuracy_and_the_gap_otherwise():
+    conf = np.full(100, 0.75)
+    correct = np.arange(100) < 75
+    assert expected_calibration_error(conf, correct) == pytest.approx(0.0)
+    # overconfident: 0.9 claimed, half right -> a gap of 0.4 in the only bin used
+    assert expected_calibration_error(np.full(10, 0.9), np.arange(10) < 5) == pytest.approx(0.4)
+    # two bins weighted by count: 0.3 (n=2) and 0.1 (n=8) -> 0.14
+    conf = np.r_[0.2, 0.2, np.full(8, 0.9)]
+    correct = np.r_[True, False, np.full(8, True)]
+    assert expected_calibration_error(conf, correct) == pytest.approx((2 * 0.3 + 8 * 0.1) / 10)
+    table = reliability_table(conf, correct, n_bins=15)
+    assert table["n"].sum() == 10 and len(table) == 15
+
+
+def test_coverage_curve_keeps_the_most_confident_first():
+    conf = np.array([0.9, 0.2, 0.8, 0.5])
+    correct = np.array([True, False, True, False])
+    curve = coverage_curve(conf, correct)
+    assert curve["coverage"].tolist() == [0.25, 0.5, 0.75, 1.0]
+    assert curve["accuracy"].tolist() == [1.0, 1.0, pytest.approx(2 / 3), 0.5]
+    assert accuracy_at_coverage(conf, correct, 0.5) == 1.0
+    assert accuracy_at_coverage(conf, correct, 0.9) == 0.5  # ceil(0.9 * 4) = 4 kept
+
+
+def test_top_classes_orders_by_probability():
+    top = top_classes(np.array([[0.1, 0.7, 0.2], [0.5, 0.2, 0.3]]), ["a", "b", "c"], k=3)
+    assert top["top1"].tolist() == ["b", "a"] and top["top3"].tolist() == ["a", "b"]
+    assert top["p1"].tolist() == [0.7, 0.5] and top["p2"].tolist() == [0.2, 0.3]
+
+
+def synthetic(label: int, session: int, trial: int, spread: float) -> Recording:
+    """Two channels whose level depends on the class, with session offsets and noise."""
+    rng = np.random.default_rng([label, session, trial])
+    level = label + rng.normal(0.0, spread) + 0.2 * session
+    samples = level + rng.normal(0.0, 0.01, (200, 2))
+    return Recording.from_arrays(samples, 100.0, ("a", "b"), name=f"s{session}_{label}_{trial}",
+                                 metadata={"label": f"c{label}", "session": session})
+
+
+class LevelFeatures(TransformerMixin, BaseEstimator):
+    """Channel means; ``transform_draws`` widens the draws of recordings named in ``wide``."""
+
+    def __init__(self, wide: tuple[str, ...] = ()):
+        self.wide = wide
+
+    def fit(self, X, y=None):
+        return self
+
+    def transform(self, X):
+        return np.array([r.samples.mean(axis=0) for r in X])
+
+    def transform_draws(self, X, n_draws, rng):
+        rows = self.transform(X)
+        sd = np.array([1.0 if r.name in self.wide else 1e-6 for r in X])[:, None]
+        return rows + sd * rng.normal(size=(n_draws, *rows.shape))
+
+    def get_feature_names_out(self, input_features=None):
+        return np.array(["a [N]", "b [N]"], dtype=object)
+
+
+def _pipeline(wide=(), probability=True):
+    from sklearn.pipeline import Pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC
+
+    svc = SVC(random_state=0, **({"probability": True} if probability else {}))
+    return Pipeline([("features", LevelFeatures(wide)), ("scale", StandardScaler()),
+                     ("classifier", svc)])
+
+
+@pytest.fixture(scope="module")
+def overlapping():
+    """Three classes whose levels overlap (spread 0.45 for steps of 1): not all separable."""
+    return [synthetic(c, s, k, 0.45) for s in (1, 2, 3) for c in range(3) for k in range(8)]
+
+
+def test_calibrated_pipeline_gives_probabilities_that_agree_with_its_predictions(overlapping):
+    train = [r for r in overlapping if r.metadata["session"] != 3]
+    test = [r for r in overlapping if r.metadata["session"] == 3]
+    y = np.array([r.metadata["label"] for r in train])
+    model = CalibratedPipeline(_pipeline()).fit(train, y)
+    proba = model.predict_proba(test)
+    assert proba.shape == (len(test), 3)
+    np.testing.assert_allclose(proba.sum(axis=1), 1.0)
+    assert (model.predict(test) == model.classes_[proba.argmax(axis=1)]).all()
+    # overlapping classes: the calibrated model is not sure of everything
+    assert 0.4 < proba.max(axis=1).mean() < 0.99
+
+
+def test_wide_posterior_draws_flatten_the_probabilities(overlapping):
+    train = [r for r in overlapping if r.metadata["session"] != 3]
+    test = [r for r in overlapping if r.metadata["session"] == 3]
+    y = np.array([r.metadata["label"] for r in train])
+    sure = CalibratedPipeline(_pipeline(), n_draws=64).fit(train, y)
+    wide_names = tuple(r.name for r in test)
+    unsure = CalibratedPipeline(_pipeline(wide=wide_names), n_draws=64).fit(train, y)
+    p_sure = sure.predict_proba(test).max(axis=1)
+    p_unsure = unsure.predict_proba(test).max(axis=1)
+    assert np.mean(p_unsure < p_sure) >= 0.9
+
+
+def test_feature_draws_repeat_a_transformer_without_a_posterior(overlapping):
+    from sklearn.pipeline import FeatureUnion
+
+    union = FeatureUnion([("a", LevelFeatures()), ("b", LevelFeatures(wide=("s1_0_0",)))])
+    union.fit(overlapping[:3])
+    draws = feature_draws(union, overlapping[:3], 5, rng=0)
+    assert draws.shape == (5, 3, 4)
+    assert np.ptp(draws[:, 0, 2]) > 0.1 and np.ptp(draws[:, 1, 2]) < 1e-4
+
+
+def test_evaluate_reports_probabilities_top3_and_calibration_scores(overlapping, tmp_path):
+    ev = evaluate(overlapping, protocol="leave-one-session-out", pipeline=_pipeline())
+    assert {"probability", "top1", "p1", "top3", "p3"} <= set(ev.predictions.columns)
+    assert (ev.predictions["predicted"] == ev.predictions["top1"]).all()
+    assert ev.probabilities.shape == (len(overlapping), 3)
+    scores = ev.calibration()
+    assert set(scores) == {"ece", "accuracy_at_0.9"}
+    assert 0.0 <= scores["ece"] <= 1.0
+    plot_reliability(ev.predictions["probability"], ev.correct, tmp_path / "r.png", "t")
+    assert (tmp_path / "r.png").stat().st_size > 10_000
+    plain = evaluate(overlapping, protocol="leave-one-session-out",
+                     pipeline=_pipeline(probability=False), calibrate=False)
+    assert "probability" not in plain.predictions and plain.calibration() == {}
+
+
+def test_make_pipeline_svm_gives_probabilities_on_request():
+    assert hasattr(make_pipeline("handcrafted", "svm-ovo", probability=True), "predict_proba")
+    assert not hasattr(make_pipeline("handcrafted", "svm-ovo"), "predict_proba")
