@@ -1,15 +1,17 @@
-"""Class probabilities a lab can act on: calibrated, with the fit's uncertainty carried through.
+"""Class probabilities a lab can act on: calibrated, and optionally carrying each
+recording's uncertainty.
 
 :class:`CalibratedPipeline` wraps a classification pipeline (``features -> ... ->
-classifier``). Its probabilities come from the classifier's scores (SVM decision
-values, or log-probabilities) mapped through a calibrator (scikit-learn's
-:class:`~sklearn.calibration.CalibratedClassifierCV`, temperature scaling by default)
-fitted on *held-out* scores: each training session is scored by a pipeline trained on
-the other sessions, so the probabilities are sized for a new day, not for the days
-seen in training. Where the feature set can draw its rows from the fits' posteriors
-(``transform_draws``), ``predict_proba`` averages the calibrated probabilities over
-those draws: a recording whose parameters are poorly determined gets a flatter
-distribution.
+classifier``). Its probabilities are the classifier's own (an SVM's Platt scaling;
+decision values for a classifier without probabilities) mapped through a calibrator
+(temperature scaling of :class:`~sklearn.calibration.CalibratedClassifierCV` by
+default) fitted on *held-out* scores: each training session is scored by a pipeline
+trained on the other sessions, so the probabilities are sized for a new day, not for
+the days seen in training. With ``n_draws > 0`` and a feature set that can draw its
+rows (``transform_draws``: a bootstrap over a recording's motions, values that could
+not be measured drawn from the training values), the classifier's probabilities are
+averaged over the draws before calibration, at training and prediction alike: a
+damaged recording, or one whose motions disagree, gets a flatter distribution.
 
 The scores of the calibration are in :func:`expected_calibration_error`,
 :func:`reliability_table` and :func:`coverage_curve`; :func:`plot_reliability` draws
@@ -27,7 +29,7 @@ from scipy.special import softmax
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.calibration import CalibratedClassifierCV
 from sklearn.frozen import FrozenEstimator
-from sklearn.model_selection import LeaveOneGroupOut, StratifiedKFold, cross_val_predict
+from sklearn.model_selection import LeaveOneGroupOut, StratifiedKFold
 from sklearn.pipeline import FeatureUnion, Pipeline
 from sklearn.utils.validation import check_is_fitted
 
@@ -102,9 +104,13 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     method : {"temperature", "sigmoid", "isotonic"}, default "temperature"
         The calibrator of :class:`~sklearn.calibration.CalibratedClassifierCV`;
         temperature scaling keeps the classifier's ranking of classes and fits one number.
-    n_draws : int, default 32
-        Posterior draws per recording in :meth:`predict_proba` when the feature set can
-        draw them (fewer draws are made where it cannot: one deterministic row).
+    n_draws : int, default 0
+        Draws per recording when the feature set can draw them (one row is used where
+        it cannot); 0: the feature rows themselves (point estimates). On the lab
+        stand-in (sessions 1-3, leave-one-session-out, physical) 32 draws lowered the
+        top probability of a damaged twin more often (30 % of samples missing: 81-97 %
+        of 32 recordings, against 75-90 % with point estimates) but cost accuracy
+        (0.921 against 0.938); see ``docs/decisions.md``.
     seed : int, default 0
 
     Attributes
@@ -119,7 +125,7 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     """
 
     def __init__(self, pipeline: Pipeline, group_key: str = "session",
-                 method: str = "temperature", n_draws: int = 32, seed: int = 0):
+                 method: str = "temperature", n_draws: int = 0, seed: int = 0):
         self.pipeline = pipeline
         self.group_key = group_key
         self.method = method
@@ -143,19 +149,41 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
             self.pipeline_ = clone(self.pipeline).fit(X, y)
             self.classes_ = self.pipeline_.classes_
             try:
-                held_out = cross_val_predict(clone(self.pipeline), X, y,
-                                             cv=self._splits(X, y),
-                                             method=_score_method(self.pipeline))
-                scores = _as_scores(held_out, self.pipeline_, self.classes_.size)
+                held_out = np.empty((len(X), self.classes_.size))
+                for train, test in self._splits(X, y):
+                    model = clone(self.pipeline).fit([X[i] for i in train], y[train])
+                    held_out[test] = self._scores(model, [X[i] for i in test])
                 # The frozen scorer is never refitted: its 2 folds only partition the rows.
                 self.calibrator_ = CalibratedClassifierCV(
                     FrozenEstimator(_Scores(self.classes_).fit(None)), method=self.method,
-                    cv=2).fit(scores, y)
+                    cv=2).fit(held_out, y)
             except ValueError as exc:  # too few recordings to hold any out
                 warnings.warn(f"class probabilities are not calibrated: {exc}",
                               CalibrationWarning, stacklevel=2)
                 self.calibrator_ = None
         return self
+
+    def _scores(self, model: Pipeline, X: list[Recording]) -> np.ndarray:
+        """Scores ``(n, n_classes)`` in the order of ``classes_``: the log of the classifier's
+        probabilities averaged over the feature draws (decision values averaged, for a
+        classifier without probabilities); a class ``model`` never saw scores lowest."""
+        if self.n_draws > 0:
+            draws = feature_draws(model[0], X, self.n_draws, self.seed)
+            if np.all(draws == draws[:1]):  # no posterior to carry: one evaluation
+                draws = draws[:1]
+        else:
+            draws = model[0].transform(X)[None]
+        rest = model[1:]
+        if hasattr(rest, "predict_proba"):
+            own = np.log(np.clip(np.mean([rest.predict_proba(d) for d in draws], axis=0),
+                                 1e-12, 1.0))
+        else:
+            own = np.mean([rest.decision_function(d) for d in draws], axis=0)
+            if own.ndim == 1:  # binary: one decision value d -> (-d/2, d/2)
+                own = np.stack([-0.5 * own, 0.5 * own], axis=1)
+        out = np.full((len(X), self.classes_.size), own.min() - 1.0 if own.size else 0.0)
+        out[:, np.searchsorted(self.classes_, model.classes_)] = own
+        return out
 
     def _splits(self, X, y) -> list:
         groups = np.asarray([str(r.metadata.get(self.group_key)) for r in X])
@@ -170,18 +198,10 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
         return list(cv.split(index, y))
 
     def predict_proba(self, X: Sequence[Recording]) -> np.ndarray:
-        """Calibrated class probabilities, averaged over posterior draws; ``(n, n_classes)``."""
+        """Calibrated class probabilities, ``(n, n_classes)``; where the features have
+        posterior draws, the classifier's probability is averaged over them first."""
         check_is_fitted(self, "pipeline_")
-        X = list(X)
-        features, rest = self.pipeline_[0], self.pipeline_[1:]
-        draws = feature_draws(features, X, max(int(self.n_draws), 1), self.seed)
-        if np.all(draws == draws[:1]):  # no posterior to carry: one evaluation
-            draws = draws[:1]
-        proba = [self._calibrated(_as_scores(_scored(rest, d), rest, self.classes_.size))
-                 for d in draws]
-        return np.mean(proba, axis=0)
-
-    def _calibrated(self, scores: np.ndarray) -> np.ndarray:
+        scores = self._scores(self.pipeline_, list(X))
         if self.calibrator_ is not None:
             return self.calibrator_.predict_proba(scores)
         return softmax(scores, axis=1)  # uncalibrated (see the warning at fit)
@@ -189,27 +209,6 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     def predict(self, X: Sequence[Recording]) -> np.ndarray:
         """The most probable class of each recording (agrees with :meth:`predict_proba`)."""
         return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
-
-
-def _score_method(estimator) -> str:
-    """The classifier's own probabilities where it has them, else its decision values."""
-    return "predict_proba" if hasattr(estimator, "predict_proba") else "decision_function"
-
-
-def _scored(estimator, X) -> np.ndarray:
-    return getattr(estimator, _score_method(estimator))(X)
-
-
-def _as_scores(raw: np.ndarray, estimator, n_classes: int) -> np.ndarray:
-    """Scores ``(n, n_classes)``: log-probabilities for a probabilistic classifier, decision
-    values otherwise (a binary decision ``d`` becomes ``(-d/2, d/2)``)."""
-    raw = np.asarray(raw, dtype=np.float64)
-    if _score_method(estimator) == "predict_proba":
-        return np.log(np.clip(raw, 1e-12, 1.0))
-    if raw.ndim == 1 or (n_classes == 2 and raw.shape[-1] != 2):
-        d = raw.reshape(-1)
-        return np.stack([-0.5 * d, 0.5 * d], axis=1)
-    return raw
 
 
 def top_classes(proba: np.ndarray, classes: Sequence, k: int = 3) -> pd.DataFrame:

@@ -389,7 +389,7 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
              protocol: str = "kfold", *, target: str = "label", seed: int = 0,
              n_splits: int = 5, project: str | None = "auto",
              pipeline: Pipeline | None = None, calibrate: bool = True,
-             n_draws: int = 32) -> Evaluation:
+             n_draws: int = 0) -> Evaluation:
     """Train and test ``features -> scaler -> [projection ->] classifier``; pooled scores.
 
     Parameters
@@ -409,9 +409,9 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
         Cloned for every fold instead of building one from the names.
     calibrate : bool, default True
         Wrap each fold's pipeline in :class:`~frictionfit.calibration.CalibratedPipeline`
-        (probabilities calibrated on the training sessions held out in turn, averaged
-        over ``n_draws`` posterior draws where the features have them); predictions
-        are then the most probable classes.
+        (probabilities calibrated on the training sessions held out in turn; averaged
+        over ``n_draws`` feature draws where the features have them); predictions are
+        then the most probable classes.
 
     Examples
     --------

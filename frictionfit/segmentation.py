@@ -91,10 +91,13 @@ class Motion:
 
 
 def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
-    """Centred moving average over ``n`` samples along axis 0, ignoring NaN; same length."""
+    """Centred moving average over ``n`` samples along axis 0, ignoring NaN; same length
+    (a signal shorter than ``n`` is averaged over its own length)."""
     x = np.asarray(x, dtype=np.float64)
+    if x.shape[0] == 0:
+        return x.copy()
     finite = np.isfinite(x)
-    kernel = np.ones(n)
+    kernel = np.ones(min(n, x.shape[0]))
     flat = x.reshape(x.shape[0], -1)
     ok = finite.reshape(flat.shape)
     out = np.empty_like(flat)

@@ -45,6 +45,11 @@ def test_moving_average_ignores_nan():
     np.testing.assert_allclose(moving_average(x, 3), [1.5, 1.5, 3.0, 4.5, 4.5])
 
 
+def test_moving_average_of_a_signal_shorter_than_its_window_keeps_the_length():
+    np.testing.assert_allclose(moving_average(np.array([1.0, 2.0, 6.0]), 25), [1.5, 3.0, 4.0])
+    assert moving_average(np.array([]), 25).shape == (0,)
+
+
 def test_no_events_is_a_named_error():
     rec = Recording.from_arrays(np.zeros((100, 1)), 1000.0, ["x"],
                                 name="s1_x_01")

@@ -80,6 +80,8 @@ def train(
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
     calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on the "
                                    "training sessions held out in turn."),
+    draws: int = typer.Option(0, min=0, help="With --calibrate: average the probabilities "
+                              "over this many feature draws per recording (0: point values)."),
 ) -> None:
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
     import joblib
@@ -94,7 +96,7 @@ def train(
         pipeline = make_pipeline(features, classifier, seed=seed,
                                  project=projection_for(recordings, _projection(project)),
                                  probability=calibrate)
-        model = CalibratedPipeline(pipeline, seed=seed) if calibrate else pipeline
+        model = CalibratedPipeline(pipeline, n_draws=draws, seed=seed) if calibrate else pipeline
         model.fit(recordings, y)
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
@@ -200,7 +202,9 @@ def evaluate(
     predictions: Path = typer.Option(None, help="Save every test recording's prediction, "
                                      "probability and top-3 classes (.csv)."),
     calibrate: bool = typer.Option(True, help="Calibrated class probabilities (held-out "
-                                   "sessions; posterior draws where the features have them)."),
+                                   "sessions)."),
+    draws: int = typer.Option(0, min=0, help="With --calibrate: average the probabilities "
+                              "over this many feature draws per recording (0: point values)."),
     all_: bool = typer.Option(False, "--all", help="Every feature set x classifier x protocol "
                               "(defaults per dataset kind; or the --feature-sets, "
                               "--classifiers, --protocols lists)."),
@@ -235,7 +239,7 @@ def evaluate(
     for f, c, p in combos:
         try:
             ev = run(recordings, f, c, p, target=target, seed=seed, project=projection,
-                     calibrate=calibrate)
+                     calibrate=calibrate, n_draws=draws)
         except (FrictionfitError, ValueError, ImportError) as exc:
             if not all_:
                 _fail(str(exc))

@@ -3,7 +3,12 @@
 A feature set turns each :class:`~frictionfit.recording.Recording` into one row of
 named features. Subclasses write :meth:`RecordingFeatures._extract` (a batch of
 recordings -> rows; batching lets expensive sets such as the physical fits run all
-trials in one call) and :meth:`RecordingFeatures._names`. The base class gives
+trials in one call) and :meth:`RecordingFeatures._names`; a set that measures each
+motion and takes the median over a recording's motions writes
+:meth:`RecordingFeatures._motion_rows` instead, and gains ``transform_draws``: rows
+drawn from the sampling distribution of that median (a bootstrap over the motions),
+so a recording whose motions disagree, or that has few usable ones, carries that
+uncertainty to the classifier. The base class gives
 them the scikit-learn contract (``fit`` / ``transform`` / ``get_feature_names_out``)
 and a per-recording cache: rows are stored with :class:`joblib.Memory` under
 ``$FRICTIONFIT_CACHE`` (default ``~/.cache/frictionfit``), keyed by the class, its
@@ -28,7 +33,7 @@ from tqdm.auto import tqdm
 
 from frictionfit.recording import Recording
 
-__all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key"]
+__all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key", "median_over_motions"]
 
 #: Bump when the meaning of cached rows changes for every feature set.
 CACHE_VERSION = 1
@@ -53,6 +58,13 @@ def content_key(rec: Recording) -> str:
         ))
         _KEYS[rec] = key
     return key
+
+
+def median_over_motions(rows: list[np.ndarray]) -> np.ndarray:
+    """Per-feature median over motions, ignoring NaN; NaN only where every motion is NaN."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices stay NaN, on purpose
+        return np.nanmedian(np.asarray(rows, dtype=np.float64), axis=0)
 
 
 def _stored_row(extractor_key: str, recording_key: str, row=None):
@@ -80,6 +92,9 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     ----------
     fill_values_ : ndarray of shape (n_features,)
         Training median of each feature, used to fill values that cannot be computed.
+    training_rows_ : ndarray of shape (n_training_recordings, n_features)
+        The training rows (NaN where not computed); ``transform_draws`` draws values that
+        cannot be computed from them.
     n_features_out_ : int
         Number of features.
     """
@@ -92,6 +107,14 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     cache: bool = True
 
     def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
+        out = np.full((len(recordings), len(self._names())), np.nan)
+        for i, rows in enumerate(self._motion_rows(recordings)):
+            if rows is not None and len(rows):
+                out[i] = median_over_motions(rows)
+        return out
+
+    def _motion_rows(self, recordings: Sequence[Recording]) -> list[np.ndarray | None]:
+        """Per recording, its motions' rows ``(n_motions, n_features)`` (None: no motion)."""
         raise NotImplementedError
 
     def _names(self) -> list[str]:
@@ -162,6 +185,7 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         for j in np.flatnonzero(counts):
             medians[j] = np.median(rows[finite[:, j], j])
         self.fill_values_ = medians
+        self.training_rows_ = rows
 
     def transform(self, X: Sequence[Recording]) -> np.ndarray:
         """Features of each recording, shape (n_recordings, n_features), never NaN."""
@@ -187,6 +211,58 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         """Readable feature names with units."""
         return np.asarray(self._names(), dtype=object)
+
+    def transform_draws(self, X: Sequence[Recording], n_draws: int,
+                        rng: np.random.Generator) -> np.ndarray:
+        """Rows drawn from each recording's sampling distribution, ``(n_draws, n, n_features)``.
+
+        For a set built from motions: the median over a bootstrap resample of the
+        recording's motions, one resample per draw; a value no resampled motion gives
+        is drawn from that feature's training values. Other sets have no such
+        distribution: every draw is the row of :meth:`transform`.
+        """
+        check_is_fitted(self, "fill_values_")
+        X = _as_list(X)
+        if type(self)._motion_rows is RecordingFeatures._motion_rows:
+            rows = self.transform(X)
+            return np.broadcast_to(rows, (n_draws, *rows.shape))
+        out = np.full((n_draws, len(X), self.n_features_out_), np.nan)
+        for i, rows in enumerate(self._cached_motion_rows(X)):
+            if rows is not None and len(rows):
+                pick = rng.integers(0, len(rows), size=(n_draws, len(rows)))
+                out[:, i] = median_over_motions(np.moveaxis(rows[pick], 1, 0))
+        return self._drawn_where_missing(out, rng)
+
+    def _drawn_where_missing(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Values that could not be measured, drawn from that feature's training values:
+        what is not measured may be anything seen in training (the training median
+        where no training value exists)."""
+        draws = draws.copy()
+        for j in range(draws.shape[-1]):
+            bad = ~np.isfinite(draws[..., j])
+            if not bad.any():
+                continue
+            seen = self.training_rows_[:, j][np.isfinite(self.training_rows_[:, j])]
+            draws[..., j][bad] = (rng.choice(seen, size=int(bad.sum())) if seen.size
+                                  else self.fill_values_[j])
+        return draws
+
+    def _cached_motion_rows(self, recordings: list[Recording]) -> list[np.ndarray | None]:
+        """:meth:`_motion_rows`, cached by recording content like the rows."""
+        if not self.cache:
+            return self._motion_rows(recordings)
+        memory = joblib.Memory(cache_dir() / "features", verbose=0)
+        stored = memory.cache(_stored_row, ignore=["row"])
+        ekey = self._extractor_key() + ":motions"
+        keys = [content_key(r) for r in recordings]
+        found = {i: stored(ekey, k) for i, k in enumerate(keys)
+                 if stored.check_call_in_cache(ekey, k)}
+        missing = [i for i in range(len(recordings)) if i not in found]
+        if missing:
+            for i, rows in zip(missing, self._motion_rows([recordings[i] for i in missing]),
+                               strict=True):
+                found[i] = stored(ekey, keys[i], row=rows)
+        return [found[i] for i in range(len(recordings))]
 
 
 class FeatureWarning(UserWarning):

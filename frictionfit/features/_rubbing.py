@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -48,10 +47,3 @@ def fill_gaps(x: np.ndarray) -> np.ndarray:
         if ok.any() and not ok.all():
             col[~ok] = np.interp(idx[~ok], idx[ok], col[ok])
     return x
-
-
-def median_over_motions(rows: list[np.ndarray]) -> np.ndarray:
-    """Per-feature median over motions, ignoring NaN; NaN only where every motion is NaN."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices stay NaN, on purpose
-        return np.nanmedian(np.asarray(rows, dtype=np.float64), axis=0)

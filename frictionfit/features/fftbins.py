@@ -17,14 +17,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from frictionfit.errors import RecordingError
-from frictionfit.features._base import FeatureWarning, RecordingFeatures
+from frictionfit.features._base import FeatureWarning, RecordingFeatures, median_over_motions
 from frictionfit.features._rubbing import (
     PHASES,
     RUBBING_CHANNELS,
     channel_samples,
     command_times,
     fill_gaps,
-    median_over_motions,
     motions,
 )
 from frictionfit.recording import Recording

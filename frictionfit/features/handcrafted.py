@@ -32,7 +32,6 @@ from frictionfit.features._rubbing import (
     RUBBING_CHANNELS,
     channel_samples,
     command_times,
-    median_over_motions,
     motions,
 )
 from frictionfit.recording import Recording
@@ -124,13 +123,14 @@ class HandcraftedFeatures(RecordingFeatures):
             row += [x[ok[0], j], x[ok[-1], j]] if ok.size else [np.nan, np.nan]
         return np.asarray(row, dtype=np.float64)
 
-    def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
-        out = np.full((len(recordings), len(self._names())), np.nan)
-        for i, rec in enumerate(recordings):
+    def _motion_rows(self, recordings: Sequence[Recording]) -> list[np.ndarray | None]:
+        out: list[np.ndarray | None] = []
+        for rec in recordings:
             try:
                 found = motions(rec, self.channels, self.filter_n)
             except RecordingError as exc:
                 warnings.warn(f"handcrafted features: {exc}", FeatureWarning, stacklevel=2)
+                out.append(None)
                 continue
-            out[i] = median_over_motions([self._motion_row(m) for m in found])
+            out.append(np.stack([self._motion_row(m) for m in found]))
         return out

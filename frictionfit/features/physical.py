@@ -51,7 +51,6 @@ from frictionfit.features._rubbing import (
     RUBBING_CHANNELS,
     channel_samples,
     command_times,
-    median_over_motions,
     motions,
 )
 from frictionfit.models import PARAMS, get_model
@@ -73,6 +72,8 @@ N_BASIC = 6
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is measured.
 RIPPLE_S = 0.25
+#: Fewest finite samples, as a share of the peak window, for a phase to be measured.
+MIN_COVERAGE = 0.9
 
 
 def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
@@ -81,12 +82,13 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
 
     ``x``: the motion's signal (N, NaN where missing); ``i_cmd``: the command's
     sample; ``i_end``: the phase end (exclusive); ``peak_samples``: the peak window.
+    All NaN where less than :data:`MIN_COVERAGE` of the peak window is finite.
     """
     out = np.full(len(MEASURED), np.nan)
     idx = np.flatnonzero(np.isfinite(x[i_cmd:i_end])) + i_cmd
     window = idx[idx < i_cmd + peak_samples]
-    if window.size < 2:
-        return out
+    if window.size < max(2, MIN_COVERAGE * min(peak_samples, i_end - i_cmd)):
+        return out  # the peak may lie in a gap: nothing of this phase can be trusted
     dev = x - x[idx[0]]
     i_peak = window[np.argmax(np.abs(dev[window]))]
     rise, static = dev[i_peak], dev[idx[-1]]
@@ -108,7 +110,7 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
         (crossed[0] - i_peak) / rate_hz if crossed.size else np.nan,
         slopes.max() if slopes.size else np.nan,
         (i_peak - i_cmd) / rate_hz,
-        np.std(dev[ripple] - smooth) / abs(rise),
+        np.std(dev[ripple] - smooth) / abs(rise) if ripple.size else np.nan,
         *curve,
     ]
     return out
@@ -165,7 +167,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 3  # 2: MAP under the movement-duration prior; 3: Nielsen damping in the LM
+    _version = 4  # 2: MAP under the movement-duration prior; 3: Nielsen damping; 4: coverage rule
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
@@ -238,7 +240,7 @@ class PhysicalFeatures(RecordingFeatures):
         return super().get_feature_names_out(input_features)
 
     # --- extraction ----------------------------------------------------------
-    def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
+    def _motion_rows(self, recordings: Sequence[Recording]) -> list[np.ndarray | None]:
         found: list[list[Motion] | None] = []
         for rec in recordings:
             try:
@@ -247,10 +249,11 @@ class PhysicalFeatures(RecordingFeatures):
                 warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=2)
                 found.append(None)
         fits = self._fit_all([m for ms in found if ms for m in ms]) if self.fitted else None
-        out = np.full((len(recordings), len(self._names())), np.nan)
+        out: list[np.ndarray | None] = []
         k = 0
-        for i, ms in enumerate(found):
+        for ms in found:
             if not ms:
+                out.append(None)
                 continue
             rows = []
             for m in ms:
@@ -262,7 +265,7 @@ class PhysicalFeatures(RecordingFeatures):
                     if self.measured:
                         row.append(self._measured(m, j))
                 rows.append(np.concatenate(row))
-            out[i] = median_over_motions(rows)
+            out.append(np.stack(rows))
         return out
 
     def _measured(self, m: Motion, j: int) -> np.ndarray:

@@ -17,12 +17,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from frictionfit.errors import RecordingError
-from frictionfit.features._base import FeatureWarning, RecordingFeatures
+from frictionfit.features._base import FeatureWarning, RecordingFeatures, median_over_motions
 from frictionfit.features._rubbing import (
     RUBBING_CHANNELS,
     channel_samples,
     fill_gaps,
-    median_over_motions,
     motions,
 )
 from frictionfit.recording import Recording
