@@ -280,8 +280,8 @@ def plot_reliability(confidence, correct, path, title: str = "", n_bins: int = 1
     left.bar(used["lo"], used["accuracy"], width=width, align="edge", color="tab:blue",
              alpha=0.7, edgecolor="white", label="accuracy in bin")
     left.plot([0, 1], [0, 1], color="0.4", linestyle="--", label="perfect calibration")
-    left.plot(used["confidence"], used["accuracy"], "o", color="tab:orange",
-              label="mean confidence in bin")
+    left.hlines(used["confidence"], used["lo"], used["hi"], color="tab:red", linewidth=2,
+                label="mean top-class probability in bin")
     for _, row in used.iterrows():
         left.annotate(str(int(row["n"])), (row["lo"] + width / 2, row["accuracy"]),
                       ha="center", va="bottom", fontsize=7, color="0.3")
