@@ -345,7 +345,8 @@ class Evaluation:
     predictions : DataFrame
         One row per test recording: ``recording``, ``fold``, ``true``, ``predicted``, the
         metadata of :data:`CONDITIONS` present and, when calibrated, ``probability`` (of
-        the predicted class) and the top three classes ``top1..3`` with ``p1..3``.
+        the predicted class) and the three most probable classes ``top1..3`` with
+        ``p1..3`` (``top1`` can differ from ``predicted``: a doubtful call).
     breakdown : dict of str -> DataFrame
         Per condition key, accuracy and count per value.
     fold_accuracy : list of float
@@ -389,7 +390,7 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
              protocol: str = "kfold", *, target: str = "label", seed: int = 0,
              n_splits: int = 5, project: str | None = "auto",
              pipeline: Pipeline | None = None, calibrate: bool = True,
-             n_draws: int = 0) -> Evaluation:
+             n_draws: int = 32) -> Evaluation:
     """Train and test ``features -> scaler -> [projection ->] classifier``; pooled scores.
 
     Parameters
@@ -410,8 +411,8 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
     calibrate : bool, default True
         Wrap each fold's pipeline in :class:`~frictionfit.calibration.CalibratedPipeline`
         (probabilities calibrated on the training sessions held out in turn; averaged
-        over ``n_draws`` feature draws where the features have them); predictions are
-        then the most probable classes.
+        over ``n_draws`` feature draws where the features have them); ``probability``
+        is then the calibrated probability of the predicted class.
 
     Examples
     --------
@@ -430,12 +431,10 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
                                                 n_splits=n_splits)):
         model = clone(template).fit([recordings[i] for i in train], y[train])
         tested = [recordings[i] for i in test]
+        pred = model.predict(tested)
         if calibrate:
-            proba = model.predict_proba(tested)
-            pred = model.classes_[np.argmax(proba, axis=1)]
-            proba_rows.append(pd.DataFrame(proba, columns=model.classes_.astype(str)))
-        else:
-            pred = model.predict(tested)
+            proba_rows.append(pd.DataFrame(model.predict_proba(tested),
+                                           columns=model.classes_.astype(str)))
         fold_acc.append(float(accuracy_score(y[test].astype(str), pred.astype(str))))
         for i, p in zip(test, pred, strict=True):
             rec = recordings[i]
@@ -446,9 +445,10 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
     if calibrate:
         probabilities = pd.concat(proba_rows, ignore_index=True).fillna(0.0)
         probabilities = probabilities[sorted(probabilities.columns)]
-        top = top_classes(probabilities.to_numpy(), probabilities.columns)
-        table["probability"] = top["p1"].to_numpy()
-        table = pd.concat([table, top], axis=1)
+        columns = list(probabilities.columns)
+        called = [columns.index(str(p)) for p in table["predicted"]]
+        table["probability"] = probabilities.to_numpy()[np.arange(len(table)), called]
+        table = pd.concat([table, top_classes(probabilities.to_numpy(), columns)], axis=1)
     return _scored(table, fold_acc, probabilities)
 
 

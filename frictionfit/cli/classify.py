@@ -80,7 +80,7 @@ def train(
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
     calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on the "
                                    "training sessions held out in turn."),
-    draws: int = typer.Option(0, min=0, help="With --calibrate: average the probabilities "
+    draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
 ) -> None:
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
@@ -138,8 +138,9 @@ def predict(
 ) -> None:
     """Write recording, predicted, probability, true label and the top-3 classes.
 
-    Probabilities are calibrated (models trained with --calibrate, the default); the
-    prediction is the most probable class, or 'abstain' below --abstain.
+    Probabilities are calibrated (models trained with --calibrate, the default):
+    'probability' is that of the predicted class ('abstain' where it is below
+    --abstain); top1..3 are the most probable classes.
     """
     import joblib
     import numpy as np
@@ -155,17 +156,18 @@ def predict(
     pipeline = saved["pipeline"]
     recordings = _load(dataset)
     try:
-        if hasattr(pipeline, "predict_proba"):
-            proba = pipeline.predict_proba(recordings)
-            top = top_classes(proba, pipeline.classes_)
-            predicted = top["top1"].to_numpy()
-        else:
-            top, predicted = None, pipeline.predict(recordings)
+        predicted = pipeline.predict(recordings)
+        proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
+            else None
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
     table = pd.DataFrame({"recording": [r.name for r in recordings], "predicted": predicted})
-    if top is not None:
-        table["probability"] = top["p1"].to_numpy()
+    top = None
+    if proba is not None:
+        classes = list(map(str, pipeline.classes_))
+        called = [classes.index(str(p)) for p in predicted]
+        table["probability"] = proba[np.arange(len(table)), called]
+        top = top_classes(proba, pipeline.classes_)
         if abstain > 0:
             table["predicted"] = np.where(table["probability"] < abstain, "abstain",
                                           table["predicted"].astype(object))
@@ -203,7 +205,7 @@ def evaluate(
                                      "probability and top-3 classes (.csv)."),
     calibrate: bool = typer.Option(True, help="Calibrated class probabilities (held-out "
                                    "sessions)."),
-    draws: int = typer.Option(0, min=0, help="With --calibrate: average the probabilities "
+    draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
     all_: bool = typer.Option(False, "--all", help="Every feature set x classifier x protocol "
                               "(defaults per dataset kind; or the --feature-sets, "

@@ -72,8 +72,6 @@ N_BASIC = 6
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is measured.
 RIPPLE_S = 0.25
-#: Fewest finite samples, as a share of the peak window, for a phase to be measured.
-MIN_COVERAGE = 0.9
 
 
 def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
@@ -82,13 +80,12 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
 
     ``x``: the motion's signal (N, NaN where missing); ``i_cmd``: the command's
     sample; ``i_end``: the phase end (exclusive); ``peak_samples``: the peak window.
-    All NaN where less than :data:`MIN_COVERAGE` of the peak window is finite.
     """
     out = np.full(len(MEASURED), np.nan)
     idx = np.flatnonzero(np.isfinite(x[i_cmd:i_end])) + i_cmd
     window = idx[idx < i_cmd + peak_samples]
-    if window.size < max(2, MIN_COVERAGE * min(peak_samples, i_end - i_cmd)):
-        return out  # the peak may lie in a gap: nothing of this phase can be trusted
+    if window.size < 2:
+        return out
     dev = x - x[idx[0]]
     i_peak = window[np.argmax(np.abs(dev[window]))]
     rise, static = dev[i_peak], dev[idx[-1]]
@@ -167,7 +164,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 4  # 2: MAP under the movement-duration prior; 3: Nielsen damping; 4: coverage rule
+    _version = 3  # 2: MAP under the movement-duration prior; 3: Nielsen damping in the LM
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
