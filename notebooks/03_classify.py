@@ -148,7 +148,9 @@ model = CalibratedPipeline(make_pipeline("physical", probability=True), n_draws=
     train, [r.metadata["label"] for r in train])
 
 rng = np.random.default_rng(0)
-target = test[0]
+intact_all = model.predict_proba(test)
+i = int(np.argmax(intact_all.max(axis=1)))  # the surest call of session 2
+target = test[i]
 gone = np.zeros(target.samples.shape[0], dtype=bool)
 while gone.mean() < 0.3:
     start = rng.integers(0, gone.size)
@@ -158,8 +160,8 @@ damaged_samples[gone] = np.nan
 damaged = Recording.from_arrays(damaged_samples, target.sample_rate_hz, target.channel_names,
                                 events=target.events, name=target.name + " (damaged)",
                                 metadata=target.metadata)
-intact = model.predict_proba(test)[0]
-hurt = model.predict_proba([damaged, *test[1:]])[0]
+intact = intact_all[i]
+hurt = model.predict_proba([*test[:i], damaged, *test[i + 1:]])[i]
 spread = pd.DataFrame({"intact": intact, "damaged": hurt}, index=model.classes_)
 top = spread.loc[spread.max(axis=1).sort_values(ascending=False).index[:6]]
 ax = top.plot.bar(figsize=(8, 3.5), rot=30)
@@ -176,7 +178,8 @@ names = list(features.get_feature_names_out())
 cols = [names.index("index_x:out_rise [N]"), names.index("index_x:out_relaxed_frac [1]")]
 fig, ax = plt.subplots(figsize=(5, 4))
 for rec, colour in ((target, "tab:blue"), (damaged, "tab:red")):
-    draws = features.transform_draws([rec, *test[1:]], 200, np.random.default_rng(1))[:, 0]
+    draws = features.transform_draws([*test[:i], rec, *test[i + 1:]], 200,
+                                     np.random.default_rng(1))[:, i]
     ax.scatter(draws[:, cols[0]], draws[:, cols[1]], s=8, alpha=0.4, color=colour,
                label=rec.name)
 ax.set(xlabel="index_x out rise (standardised)", ylabel="index_x out relaxed fraction "
@@ -191,9 +194,14 @@ ax.legend(fontsize=8)
 # (0.24); adding the fitted parameters (`physical (all)`, 0.54) or the handcrafted
 # features (0.53) does not help. Every physical set gets the layer count right (1.00),
 # and most errors fall inside the designed look-alike pairs (curtain-rose vs
-# curtain-white, paper-2 vs banknote-2). The SVM leans on the slip ripple, the relaxed
-# fractions, the normalised relaxation at 200 and 400 ms, the time to peak and the out
-# stroke's rise; of the fitted parameters the static excess and kinetic friction reach the top ten
-# (second and fourth), `k` does not. With one training day the LDA
-# projection stepped aside (too few rows); on the lab stand-in, with two or three
-# training days, it is what lifts physical features above the hand-crafted baseline.
+# curtain-white, paper-2 vs banknote-2). The SVM leans on the slip ripple, the time to
+# peak and the static excess. With one training day the LDA projection stepped aside
+# (too few rows); on the lab stand-in, with two or three training days, it is what lifts
+# physical features above the hand-crafted baseline.
+#
+# The class probabilities are only as good as what they are calibrated on: with one
+# training day of three recordings per class, the calibration folds are tiny and the
+# expected calibration error is 0.22 (on the lab stand-in, calibrated on held-out
+# sessions, it is 0.03). The surest call of session 2 (curtain-white-2 at 0.76) drops
+# to 0.47 once 30 % of its samples are lost, and its motions' draws spread out: the
+# damage shows in the probability instead of hiding in a confident label.
