@@ -28,6 +28,7 @@ import pandas as pd
 from scipy.special import softmax
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.calibration import CalibratedClassifierCV
+from sklearn.exceptions import NotFittedError
 from sklearn.frozen import FrozenEstimator
 from sklearn.model_selection import LeaveOneGroupOut, StratifiedKFold
 from sklearn.pipeline import FeatureUnion, Pipeline
@@ -155,6 +156,8 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
                 self.calibrator_ = CalibratedClassifierCV(
                     FrozenEstimator(_Scores(self.classes_).fit(None)), method=self.method,
                     cv=2).fit(held_out, y)
+            except NotFittedError:  # a bug, not a shortage of recordings
+                raise
             except ValueError as exc:  # too few recordings to hold any out
                 warnings.warn(f"class probabilities are not calibrated: {exc}",
                               CalibrationWarning, stacklevel=2)

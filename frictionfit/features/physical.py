@@ -231,6 +231,12 @@ class PhysicalFeatures(RecordingFeatures):
             return self.delegate_.transform(X)
         return super().transform(X)
 
+    def transform_draws(self, X: Sequence[Recording], n_draws: int,
+                        rng: np.random.Generator) -> np.ndarray:
+        if getattr(self, "delegate_", None) is not None:
+            return self.delegate_.transform_draws(X, n_draws, rng)
+        return super().transform_draws(X, n_draws, rng)
+
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         if getattr(self, "delegate_", None) is not None:
             return self.delegate_.get_feature_names_out(input_features)
