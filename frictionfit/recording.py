@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -26,6 +27,7 @@ from frictionfit.errors import DatasetError, RecordingError
 
 __all__ = [
     "Channel",
+    "DatasetWarning",
     "Event",
     "Problem",
     "Recording",
@@ -205,6 +207,11 @@ class Recording:
         events = tuple(e for e in self.events if start_s <= e.t < stop_s)
         return replace(self, t=self.t[keep], samples=self.samples[keep], events=events)
 
+    @property
+    def disqualified(self) -> tuple[Problem, ...]:
+        """The problems that make this recording's numbers wrong (:data:`DISQUALIFYING`)."""
+        return tuple(p for p in self.problems if p.kind in DISQUALIFYING)
+
     def with_problems(self, problems: Sequence[Problem]) -> Recording:
         return replace(self, problems=tuple(problems))
 
@@ -229,8 +236,9 @@ def validate(rec: Recording) -> list[Problem]:
     """Check a recording; return the problems found (empty when it is clean).
 
     Checks: time strictly increasing, runs of NaN/inf, dead (constant) channels,
-    the median sample interval against ``sample_rate_hz``, and unknown units.
-    Dropped samples (gaps in ``t``) are reported as kind ``"gap"``.
+    the median sample interval against ``sample_rate_hz``, events inside the time
+    range, and unknown units. Dropped samples (gaps in ``t``) are reported as kind
+    ``"gap"``; see :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
     """
     problems: list[Problem] = []
     if rec.n_samples < 2:
@@ -268,6 +276,14 @@ def validate(rec: Recording) -> list[Problem]:
                     f"first at t={rec.t[gaps[0]]:.6g} s",
                 )
             )
+    outside = [e for e in rec.events
+               if np.all(np.isfinite(rec.t)) and not rec.t[0] <= e.t <= rec.t[-1]]
+    if outside:
+        e = outside[0]
+        problems.append(Problem(
+            "events_outside", f"{len(outside)} event(s) outside the recording's time range "
+            f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s "
+            "(event times must be seconds from the start of the recording)"))
     for j, ch in enumerate(rec.channels):
         x = rec.samples[:, j]
         bad = ~np.isfinite(x)
@@ -297,7 +313,13 @@ def validate(rec: Recording) -> list[Problem]:
 
 
 #: Problems that are facts of a data link rather than defects: reported, never raised.
-INFORMATIONAL = frozenset({"gap"})
+#: Dropped rows and NaN bursts are expected of lab recordings (a serial link loses
+#: samples); segmentation and fitting mask them.
+INFORMATIONAL = frozenset({"gap", "nonfinite"})
+#: Problems that make every number taken from the recording wrong: commands skip such a
+#: recording, naming it and the problem, unless asked to stop (``--strict``).
+DISQUALIFYING = frozenset({"too_short", "nonfinite_time", "nonmonotonic_time", "sample_rate",
+                           "events_outside", "truncated"})
 
 
 def _check(rec: Recording, path: PathType, on_error: OnError) -> Recording:
@@ -333,14 +355,45 @@ def _read_sidecar(json_path: Path) -> dict[str, Any]:
         if key not in side:
             raise RecordingError(f"sidecar is missing the field {key!r}", path=json_path)
     rate = side["sample_rate_hz"]
-    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) \
+            or rate <= 0:
         raise RecordingError(f"sample_rate_hz must be a positive number, not {rate!r}",
                              path=json_path)
+    for key, kind in (("channels", list), ("events", list), ("metadata", dict),
+                      ("truth", dict)):
+        if key in side and not isinstance(side[key], kind):
+            want = "a list" if kind is list else "an object"
+            raise RecordingError(f"sidecar field {key!r} must be {want}, not "
+                                 f"{json.dumps(side[key])[:40]}", path=json_path)
     for i, ch in enumerate(side["channels"]):
         if not isinstance(ch, dict) or "name" not in ch or "unit" not in ch:
             raise RecordingError(f"channels[{i}] needs 'name' and 'unit', got {ch!r}",
                                  path=json_path)
     return side
+
+
+def _why_unparsable(csv_path: Path, exc: Exception) -> str:
+    """Name the first cell that is not a number (row counted from 1 after the header) and
+    hint at the separator; else pandas' own words."""
+    try:
+        head = csv_path.read_text(errors="replace").splitlines()[:1]
+        raw = pd.read_csv(csv_path, dtype=str, keep_default_na=False)
+    except (ValueError, OSError):
+        return f"cannot parse CSV: {exc}"
+    if head and "," not in head[0]:
+        for sep, name in ((";", "';'"), ("\t", "tabs")):
+            if sep in head[0]:
+                return (f"cannot parse CSV: the header {head[0][:60]!r} looks separated by "
+                        f"{name}; frictionfit reads comma-separated values")
+    for col in raw.columns:
+        cells = raw[col].str.strip()
+        bad = pd.to_numeric(cells.where(~cells.str.lower().isin(["", "nan"]), "0"),
+                            errors="coerce").isna()
+        if bad.any():
+            row = int(np.argmax(bad.to_numpy()))
+            return (f"cannot parse CSV: data row {row + 1} (line {row + 2}), column {col!r}: "
+                    f"{raw[col].iloc[row]!r} is not a number")
+    return f"cannot parse CSV: {exc}"
 
 
 def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
@@ -365,8 +418,8 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
         raise RecordingError("data file is missing", path=csv_path)
     try:
         frame = pd.read_csv(csv_path, dtype=np.float64, na_values=["nan", "NaN", ""])
-    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        raise RecordingError(f"cannot parse CSV: {exc}", path=csv_path) from None
+    except ValueError as exc:  # pandas' parser errors are ValueErrors too
+        raise RecordingError(_why_unparsable(csv_path, exc), path=csv_path) from None
     names = [c["name"] for c in side["channels"]]
     if list(frame.columns) != ["t", *names]:
         raise RecordingError(
@@ -385,8 +438,8 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
         sample_rate_hz=float(side["sample_rate_hz"]),
         channels=tuple(Channel(c["name"], c["unit"]) for c in side["channels"]),
         events=events,
-        metadata=dict(side.get("metadata", {})),
-        truth=dict(side.get("truth", {})),
+        metadata=dict(side.get("metadata") or {}),
+        truth=dict(side.get("truth") or {}),
         name=csv_path.stem,
         extra={k: v for k, v in side.items() if k not in known},
     )
@@ -422,13 +475,15 @@ def iter_recording_paths(folder: PathType) -> Iterator[Path]:
     yield from sorted(Path(folder).glob("*.csv"))
 
 
-def read_dataset(folder: PathType, *, on_error: OnError = "flag") -> list[Recording]:
+def read_dataset(folder: PathType, *, on_error: OnError = "flag",
+                 strict: bool = False) -> list[Recording]:
     """Read every recording in a folder (sorted by name).
 
     ``on_error="flag"`` (the default here) keeps damaged recordings with their
-    problems listed, so one bad file never sinks a dataset; files that cannot be
-    parsed at all still raise, naming the file. Channel units must agree across
-    the dataset.
+    problems listed. A file that cannot be read, whose channels differ from the
+    folder's first readable recording, or whose problems make its numbers wrong
+    (:data:`DISQUALIFYING`) is skipped with a :class:`DatasetWarning` naming it and
+    why, so one bad file never sinks a dataset; ``strict=True`` raises instead.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -436,14 +491,28 @@ def read_dataset(folder: PathType, *, on_error: OnError = "flag") -> list[Record
     paths = list(iter_recording_paths(folder))
     if not paths:
         raise DatasetError(f"{folder}: no <name>.csv + <name>.json recordings found")
-    recs = [read_recording(p, on_error=on_error) for p in paths]
-    first = recs[0]
-    for rec in recs[1:]:
-        if rec.channels != first.channels:
-            mine = [f"{c.name} [{c.unit}]" for c in rec.channels]
-            theirs = [f"{c.name} [{c.unit}]" for c in first.channels]
-            raise DatasetError(
-                f"{folder / rec.name}.json: channels {mine} differ from {theirs} of "
-                f"{first.name} (units mismatch?)"
-            )
+    recs: list[Recording] = []
+    for path in paths:
+        try:
+            rec = read_recording(path, on_error=on_error)
+            if rec.disqualified:
+                p = rec.disqualified[0]
+                raise RecordingError(str(p), path=path, channel=p.channel)
+            if recs and rec.channels != recs[0].channels:
+                mine = [f"{c.name} [{c.unit}]" for c in rec.channels]
+                theirs = [f"{c.name} [{c.unit}]" for c in recs[0].channels]
+                raise RecordingError(f"channels {mine} differ from {theirs} of "
+                                     f"{recs[0].name} (units mismatch?)", path=path)
+        except RecordingError as exc:
+            if strict:
+                raise DatasetError(str(exc)) from None
+            warnings.warn(f"skipped {exc}", DatasetWarning, stacklevel=2)
+            continue
+        recs.append(rec)
+    if not recs:
+        raise DatasetError(f"{folder}: none of its {len(paths)} recordings could be used")
     return recs
+
+
+class DatasetWarning(UserWarning):
+    """A recording was left out of a dataset (the message names it and why)."""

@@ -71,7 +71,7 @@ def test_train_then_predict_round_trip(folders, tmp_path):
 def test_features_table_has_recording_label_groups_then_features(folders, tmp_path):
     out = tmp_path / "f.csv"
     result = runner.invoke(app, ["features", "--dataset", f"recordings:{folders[1]}",
-                                 "--kind", "fftbins", "--out", str(out)])
+                                 "--features", "fftbins", "--out", str(out)])
     assert result.exit_code == 0, result.output
     table = pd.read_csv(out)
     assert list(table.columns[:3]) == ["recording", "label", "session"]

@@ -15,15 +15,22 @@ from frictionfit.datasets.fabricslide import (
     load,
     parse_name,
     read_slide,
+    slide_duration_s,
 )
 from frictionfit.errors import DatasetError, RecordingError
+from frictionfit.recording import DatasetWarning
 
 HEADER = ", ".join(COLUMNS)
 
 
-def write_slide(path: Path, n: int = 40, start_ms: int = 5000, step_ms=28, rng=None) -> np.ndarray:
-    """A small file in the upstream format ("a, b" with spaces); returns its value rows."""
+def write_slide(path: Path, n: int = 40, start_ms: int = 5000, step_ms=None,
+                rng=None) -> np.ndarray:
+    """A small file in the upstream format ("a, b" with spaces); returns its value rows.
+
+    ``step_ms=None``: rows spread over the whole slide its name's speed implies."""
     rng = rng or np.random.default_rng(0)
+    if step_ms is None:
+        step_ms = int(np.ceil(1000 * slide_duration_s(parse_name(path)["speed"]) / (n - 1)))
     ts = start_ms + np.cumsum(np.r_[0, np.broadcast_to(step_ms, (n - 1,))])
     prox = np.column_stack([rng.integers(0, 100, n), np.full(n, 65535)])
     taxels = rng.integers(20, 600, size=(n, 16))
@@ -95,7 +102,7 @@ def test_repeated_last_row_is_dropped_and_reported(tmp_path):
 )
 def test_malformed_files_are_rejected_naming_file_and_problem(tmp_path, edit, message):
     path = tmp_path / "Denim_F210_V-100mmps_1.csv"
-    write_slide(path)
+    write_slide(path, step_ms=28)
     path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
     with pytest.raises(RecordingError, match=rf"Denim_F210_V-100mmps_1.csv: .*{message}"):
         read_slide(path)
@@ -106,11 +113,27 @@ def test_folder_load_raises_or_skips_a_bad_file(tmp_path):
     write_slide(tmp_path / "Canvas_F120_V10mmps_0.csv")
     (tmp_path / "notes.csv").write_text("timestamp\n1\n")
     with pytest.raises(RecordingError, match="notes.csv: file name does not follow"):
-        load(tmp_path)
-    with pytest.warns(UserWarning, match="skipped .*notes.csv"):
-        recs = load(tmp_path, on_error="skip")
+        load(tmp_path, strict=True)
+    with pytest.warns(DatasetWarning, match="skipped .*notes.csv"):
+        recs = load(tmp_path)
     assert [r.name for r in recs] == ["Canvas_F120_V10mmps_0", "Linen_F120_V10mmps_0"]
     assert len(load_dataset(f"fabricslide:{tmp_path / 'Linen_F120_V10mmps_0.csv'}")) == 1
+
+
+def test_a_slide_cut_short_is_flagged_and_left_out(tmp_path):
+    path = tmp_path / "Linen_F120_V20mmps_0.csv"
+    write_slide(path, n=60)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:41]) + "\n")  # 40 of 60 rows: 2/3 of the slide
+    rec = read_slide(path)
+    assert [str(p) for p in rec.problems] == [
+        f"the slide ends after {rec.t[-1]:.1f} s; at 20 mm/s it lasts 29.7 s (file cut short?)"]
+    write_slide(tmp_path / "Canvas_F120_V20mmps_0.csv")
+    with pytest.warns(DatasetWarning, match=r"skipped .*Linen_F120_V20mmps_0.csv: the slide ends "
+                      r"after \d+\.\d s; at 20 mm/s it lasts 29\.7 s"):
+        assert [r.name for r in load(tmp_path)] == ["Canvas_F120_V20mmps_0"]
+    with pytest.raises(RecordingError, match="Linen_F120_V20mmps_0.csv: the slide ends after"):
+        load(tmp_path, strict=True)
 
 
 def test_empty_or_missing_folder_is_a_dataset_error(tmp_path):

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from frictionfit.errors import DatasetError, RecordingError
-from frictionfit.recording import Event, Recording, read_dataset, read_recording, write_recording
+from frictionfit.recording import (
+    DatasetWarning,
+    Event,
+    Recording,
+    read_dataset,
+    read_recording,
+    write_recording,
+)
 
 CHANNELS = ["thumb_x", "thumb_y", "index_x", "index_y"]
 
@@ -76,11 +83,32 @@ def _dead_thumb_y(text):
     return "\n".join(lines) + "\n"
 
 
+def _cell_abc(text):
+    lines = text.splitlines()
+    cells = lines[5].split(",")
+    cells[3] = "abc"
+    lines[5] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+def _semicolons(text):
+    return text.replace(",", ";")
+
+
+def _header_only(text):
+    return text.splitlines()[0] + "\n"
+
+
+def _nan_in_t(text):
+    lines = text.splitlines()
+    lines[7] = "nan" + lines[7][lines[7].index(","):]
+    return "\n".join(lines) + "\n"
+
+
 @pytest.mark.parametrize(
     "mutate_csv, mutate_json, match",
     [
         (_swap_rows, None, r"bad\.csv: time is not strictly increasing at row"),
-        (_nan_in_index_x, None, r"bad\.csv: channel 'index_x': 10 NaN/inf sample"),
         (_dead_thumb_y, None, r"channel 'thumb_y': constant at 0\.5 N \(dead\?\)"),
         (None, lambda s: s.update(sample_rate_hz=500.0), r"does not match sample_rate_hz=500"),
         (None, lambda s: s.pop("channels"), r"bad\.json: sidecar is missing the field 'channels'"),
@@ -89,12 +117,35 @@ def _dead_thumb_y(text):
         (None, lambda s: s["channels"][1].update(unit="furlong"), r"'thumb_y': unknown unit"),
         (None, lambda s: s["channels"][1].pop("unit"), r"channels\[1\] needs 'name' and 'unit'"),
         (None, lambda s: s["events"].append({"kind": "move"}), r"malformed event"),
+        (None, lambda s: s.update(sample_rate_hz=True), r"bad\.json: sample_rate_hz must be a "
+         r"positive number, not True"),
+        (None, lambda s: s.update(metadata=[1, 2]), r"bad\.json: sidecar field 'metadata' must be "
+         r"an object, not \[1, 2\]"),
+        (None, lambda s: s.update(metadata=None), r"'metadata' must be an object, not null"),
+        (None, lambda s: s.update(channels=4), r"bad\.json: sidecar field 'channels' must be a "
+         r"list, not 4"),
+        (_cell_abc, None, r"bad\.csv: cannot parse CSV: data row 5 \(line 6\), column "
+         r"'index_x': 'abc' is not a number"),
+        (_semicolons, None, r"bad\.csv: .*looks separated by ';'; frictionfit reads "
+         r"comma-separated values"),
+        (_header_only, None, r"bad\.csv: only 0 sample\(s\)"),
+        (_nan_in_t, None, r"bad\.csv: column 't' has NaN/inf values"),
+        (None, lambda s: s.update(events=[dict(e, t=e["t"] + 1.7e9) for e in s["events"]]),
+         r"bad\.csv: \d+ event\(s\) outside the recording's time range .* seconds from the "
+         r"start"),
     ],
 )
 def test_bad_input_names_file_channel_and_problem(tmp_path, rng, mutate_csv, mutate_json, match):
     path = _write_bad(tmp_path, rng, mutate_csv, mutate_json)
     with pytest.raises(RecordingError, match=match):
         read_recording(path)
+
+
+def test_nan_samples_are_listed_not_raised_a_lab_link_loses_samples(tmp_path, rng):
+    rec = read_recording(_write_bad(tmp_path, rng, mutate_csv=_nan_in_index_x))
+    assert [str(p) for p in rec.problems] == [
+        "channel 'index_x': 10 NaN/inf sample(s), first at t=0.009 s"]
+    assert not rec.disqualified
 
 
 def test_flag_policy_keeps_data_and_lists_problems(tmp_path, rng):
@@ -125,15 +176,34 @@ def test_gaps_are_reported_not_raised(tmp_path, rng):
     assert "about 50 dropped sample(s)" in back.problems[0].detail
 
 
+def test_a_folder_skips_each_unusable_file_by_name_and_strict_stops(tmp_path, rng):
+    for name in ("a", "c", "d"):
+        write_recording(_rec(rng, name=name), tmp_path / name)
+    (tmp_path / "c.csv").write_text(_cell_abc((tmp_path / "c.csv").read_text()))
+    side = json.loads((tmp_path / "d.json").read_text())
+    side["sample_rate_hz"] = 500.0
+    (tmp_path / "d.json").write_text(json.dumps(side))
+    with pytest.warns(DatasetWarning) as caught:
+        assert [r.name for r in read_dataset(tmp_path)] == ["a"]
+    said = [str(w.message) for w in caught]
+    assert any("c.csv: cannot parse CSV: data row 5" in m for m in said)
+    assert any("d.csv: median sample interval 1 ms does not match sample_rate_hz=500" in m
+               for m in said)
+    with pytest.raises(DatasetError, match=r"c\.csv: cannot parse CSV"):
+        read_dataset(tmp_path, strict=True)
+
+
 def test_dataset_units_must_agree(tmp_path, rng):
     write_recording(_rec(rng, name="a"), tmp_path / "a")
     other = _rec(rng, name="b")
     other = Recording(other.t, other.samples, 1000.0,
                       tuple(type(c)(c.name, "mN") for c in other.channels))
     write_recording(other, tmp_path / "b")
-    words = r"b\.json: channels \['thumb_x \[mN\]'.* differ from \['thumb_x \[N\]'.*units mis"
+    words = r"b\.csv: channels \['thumb_x \[mN\]'.* differ from \['thumb_x \[N\]'.*units mis"
     with pytest.raises(DatasetError, match=words):
-        read_dataset(tmp_path)
+        read_dataset(tmp_path, strict=True)
+    with pytest.warns(DatasetWarning, match="skipped .*" + words):
+        assert [r.name for r in read_dataset(tmp_path)] == ["a"]
     with pytest.raises(DatasetError, match=r"a\.csv: not a folder of recordings"):
         read_dataset(tmp_path / "a.csv")
     (tmp_path / "empty").mkdir()

@@ -7,6 +7,8 @@ from pathlib import Path
 import typer
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
+STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
+               "and why).")
 FEATURES_HELP = ("Feature set(s): physical, handcrafted, fftbins, spectral, raw, gesture, touch, "
                  "shortcut; a comma list concatenates them.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
@@ -25,22 +27,16 @@ ALL_DEFAULTS = {
 }
 
 
-def _load(dataset: str):
-    from frictionfit.datasets import load_dataset
-    from frictionfit.errors import FrictionfitError
+def _load(dataset: str, strict: bool = False):
+    from frictionfit.cli._load import load_recordings
 
-    try:
-        recordings = load_dataset(dataset)
-    except FrictionfitError as exc:
-        _fail(str(exc))
-    if not recordings:
-        _fail(f"dataset {dataset!r} holds no recordings")
-    return recordings
+    return load_recordings(dataset, strict)
 
 
 def _fail(message: str, code: int = 1):
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(code)
+    from frictionfit.cli._load import fail
+
+    fail(message, code)
 
 
 def _groups(rec) -> dict:
@@ -49,17 +45,18 @@ def _groups(rec) -> dict:
 
 def features(
     dataset: str = typer.Option(..., help=DATASET_HELP),
-    kind: str = typer.Option("physical", help=FEATURES_HELP),
+    features: str = typer.Option("physical", help=FEATURES_HELP),
     out: Path = typer.Option(Path("features.csv"), help="Output table (.csv)."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Write one row per recording: recording, label, group columns, then the features."""
     import pandas as pd
 
     from frictionfit.features import make_features
 
-    recordings = _load(dataset)
+    recordings = _load(dataset, strict)
     try:
-        transformer = make_features(kind)
+        transformer = make_features(features)
         x = transformer.fit_transform(recordings)
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
@@ -82,6 +79,7 @@ def train(
                                    "training sessions held out in turn."),
     draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
     import joblib
@@ -90,7 +88,7 @@ def train(
     from frictionfit.classify import labels_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
 
-    recordings = _load(dataset)
+    recordings = _load(dataset, strict)
     try:
         y = labels_of(recordings)
         pipeline = make_pipeline(features, classifier, seed=seed,
@@ -135,6 +133,7 @@ def predict(
     out: Path = typer.Option(Path("predictions.csv"), help="Output table (.csv)."),
     abstain: float = typer.Option(0.0, min=0.0, max=1.0, help="Write 'abstain' as the "
                                   "prediction where the top probability is below this."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Write recording, predicted, probability, true label and the top-3 classes.
 
@@ -154,7 +153,7 @@ def predict(
     if not isinstance(saved, dict) or "pipeline" not in saved:
         _fail(f"{model} is not a model saved by `frictionfit train`")
     pipeline = saved["pipeline"]
-    recordings = _load(dataset)
+    recordings = _load(dataset, strict)
     try:
         predicted = pipeline.predict(recordings)
         proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
@@ -214,6 +213,7 @@ def evaluate(
     classifiers: str = typer.Option(None, help="With --all: classifiers, comma-separated."),
     protocols: str = typer.Option(None, help="With --all: protocols, comma-separated."),
     seed: int = typer.Option(0, help="Seed of the splits and classifiers."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
     import pandas as pd
@@ -222,7 +222,7 @@ def evaluate(
     from frictionfit.classify import evaluate as run
     from frictionfit.errors import FrictionfitError
 
-    recordings = _load(dataset)
+    recordings = _load(dataset, strict)
     try:
         projection = projection_for(recordings, _projection(project))
     except ValueError as exc:

@@ -7,12 +7,14 @@ from pathlib import Path
 import typer
 
 
-def _dataset(path: Path) -> None:
+def _dataset(spec: str, strict: bool) -> None:
     from collections import Counter
 
-    from frictionfit.recording import read_dataset
+    from frictionfit.cli._load import load_recordings
 
-    recs = read_dataset(path)
+    recs = load_recordings(spec if ":" in spec.split("/")[0] else f"recordings:{spec}",
+                           strict)
+    path = spec
     labels = Counter(str(r.label) for r in recs)
     sessions = sorted({r.metadata.get("session") for r in recs}, key=str)
     problems = Counter(p.kind for r in recs for p in r.problems)
@@ -45,24 +47,44 @@ def _recording(path: Path) -> None:
     typer.echo(f"metadata: {rec.metadata}")
     if rec.truth:
         faults = rec.truth.get("faults", [])
+        faults = faults if isinstance(faults, list) else []
         typer.echo(f"truth: {sorted(rec.truth)}; {len(faults)} simulated fault(s)" + "".join(
-            f"\n  motion {f['motion']}: {f['kind']} {f['t_start']:.3f}-{f['t_stop']:.3f} s"
-            for f in faults))
+            f"\n  {_fault(f)}" for f in faults))
+    acq = rec.extra.get("acquisition")
+    if isinstance(acq, dict) and acq.get("status") == "recording":
+        typer.echo(f"acquisition: interrupted (status 'recording'): {rec.n_samples} rows in the "
+                   f"CSV, the sidecar last counted {acq.get('rows', '?')}")
     if rec.extra:
         typer.echo(f"other sidecar keys: {sorted(rec.extra)}")
     for p in rec.problems:
         typer.echo(f"problem [{p.kind}]: {p}")
 
 
+def _fault(f) -> str:
+    """One simulated fault of ``truth["faults"]``, whatever keys it has."""
+    if not isinstance(f, dict):
+        return f"fault {f!r}"
+    span = (f"{f['t_start']:.3f}-{f['t_stop']:.3f} s"
+            if isinstance(f.get("t_start"), (int, float))
+            and isinstance(f.get("t_stop"), (int, float)) else "(no time span)")
+    return f"motion {f.get('motion', '?')}: {f.get('kind', '?')} {span}"
+
+
 def info(
-    path: Path = typer.Argument(..., help="A recording (<name>.csv / .json / stem) or a folder."),
+    path: str = typer.Argument(..., help="A recording (<name>.csv / .json / stem), a folder of "
+                               "them, or KIND:PATH (e.g. fabricslide:DIR)."),
+    strict: bool = typer.Option(False, help="Stop at the first recording that cannot be used "
+                                "(default: skip it, naming it and why)."),
 ) -> None:
-    """Summarise a recording (channels, events, metadata, problems) or a dataset folder
-    (counts per label and session, problems found)."""
+    """Summarise a recording (channels, events, metadata, problems) or a dataset
+    (counts per label and session, problems found, recordings skipped)."""
     from frictionfit.errors import FrictionfitError
 
     try:
-        _dataset(path) if path.is_dir() else _recording(path)
+        if Path(path).is_file() or Path(path).with_suffix(".csv").is_file():
+            _recording(Path(path))
+        else:
+            _dataset(path, strict)
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -59,8 +59,12 @@ def shared_dataset(name: str) -> Path:
     return path
 
 
-def load_dataset(spec: str) -> list[Recording]:
-    """Load ``"KIND:PATH"`` (e.g. ``"recordings:data/sample"``) as a list of recordings."""
+def load_dataset(spec: str, strict: bool = False) -> list[Recording]:
+    """Load ``"KIND:PATH"`` (e.g. ``"recordings:data/sample"``) as a list of recordings.
+
+    A recording that cannot be used is left out with a warning naming it and why
+    (:class:`~frictionfit.recording.DatasetWarning`); ``strict=True`` raises instead.
+    """
     kind, sep, path = spec.partition(":")
     if not sep or not path:
         raise DatasetError(
@@ -69,4 +73,4 @@ def load_dataset(spec: str) -> list[Recording]:
     if kind not in DATASET_KINDS:
         raise DatasetError(f"unknown dataset kind {kind!r}; choose one of {list(DATASET_KINDS)}")
     module, _, func = DATASET_KINDS[kind].partition(":")
-    return getattr(importlib.import_module(module), func)(path)
+    return getattr(importlib.import_module(module), func)(path, strict=strict)

@@ -27,9 +27,10 @@ import pandas as pd
 
 from frictionfit._types import PathType
 from frictionfit.errors import DatasetError, RecordingError
-from frictionfit.recording import Channel, Problem, Recording
+from frictionfit.recording import Channel, DatasetWarning, Problem, Recording
 
-__all__ = ["PROXIMITY", "RAMP_SPEED_TIME_MM", "TAXELS", "load", "parse_name", "read_slide"]
+__all__ = ["PROXIMITY", "RAMP_SPEED_TIME_MM", "TAXELS", "load", "parse_name", "read_slide",
+           "slide_duration_s"]
 
 #: Taxel channel names, in file order.
 TAXELS: tuple[str, ...] = tuple(f"channel{i}" for i in range(1, 17))
@@ -43,6 +44,9 @@ RAMP_SPEED_TIME_MM = 47.1
 STEADY_TRAVEL_MM = 500.0
 #: Fewest rows a slide may have (the fastest slides have ~141).
 MIN_ROWS = 20
+#: Shortest logged duration, as a share of :func:`slide_duration_s`, of a complete slide
+#: (the shared recordings span 0.992-1.014 of it).
+SHORTEST_SHARE = 0.95
 
 _NAME = re.compile(
     r"^(?P<fabric>[A-Za-z]+)_F(?P<pressure>\d+)_V(?P<speed>[+-]?\d+)mmps_(?P<rep>\d+)\.csv$"
@@ -147,31 +151,40 @@ def read_slide(path: PathType) -> Recording:
         logger_start_ms=float(ts[0]),
         dataset="fabricslide",
     )
+    expected = slide_duration_s(speed)
+    if t[-1] < SHORTEST_SHARE * expected:
+        problems.append(Problem("truncated", f"the slide ends after {t[-1]:.1f} s; at {speed} "
+                                f"mm/s it lasts {expected:.1f} s (file cut short?)"))
     channels = tuple(Channel(c, "counts") for c in (*TAXELS, *PROXIMITY))
     return Recording(t, samples, float(rate), channels, metadata=meta, name=path.stem,
                      problems=tuple(problems))
 
 
-def load(path: PathType, on_error: str = "raise") -> list[Recording]:
+def slide_duration_s(speed_mm_s: float) -> float:
+    """How long a slide at ``|speed_mm_s|`` lasts (s): two ramps and the steady travel."""
+    return (2 * RAMP_SPEED_TIME_MM + STEADY_TRAVEL_MM) / abs(speed_mm_s)
+
+
+def load(path: PathType, strict: bool = False) -> list[Recording]:
     """Read a FabricSlide folder (any subset of its files) or one file, sorted by name.
 
     Parameters
     ----------
     path : str or Path
         A folder of ``*.csv`` slides, or a single slide file.
-    on_error : {"raise", "skip"}
-        ``"raise"``: a malformed file raises. ``"skip"``: it is left out with a warning
-        naming the file and the problem (the others are still read).
+    strict : bool, default False
+        A malformed file, or a slide whose problems make its numbers wrong (e.g. cut
+        short), raises. By default it is left out with a
+        :class:`~frictionfit.recording.DatasetWarning` naming the file and the problem,
+        and the others are still read.
 
     Raises
     ------
     DatasetError
         When the path is missing or holds no CSV file (or every file was skipped).
     RecordingError
-        For a malformed file, with ``on_error="raise"``.
+        For a malformed or unusable file, with ``strict=True``.
     """
-    if on_error not in ("raise", "skip"):
-        raise ValueError(f"on_error must be 'raise' or 'skip', not {on_error!r}")
     root = Path(path)
     if root.is_file():
         files = [root]
@@ -184,11 +197,18 @@ def load(path: PathType, on_error: str = "raise") -> list[Recording]:
     out = []
     for file in files:
         try:
-            out.append(read_slide(file))
+            rec = read_slide(file)
         except RecordingError as exc:
-            if on_error == "raise":
+            if strict:
                 raise
-            warnings.warn(f"skipped {exc}", stacklevel=2)
+            warnings.warn(f"skipped {exc}", DatasetWarning, stacklevel=2)
+            continue
+        if rec.disqualified:
+            if strict:
+                raise RecordingError(str(rec.disqualified[0]), path=file)
+            warnings.warn(f"skipped {file}: {rec.disqualified[0]}", DatasetWarning, stacklevel=2)
+            continue
+        out.append(rec)
     if not out:
         raise DatasetError(f"{root}: every FabricSlide file was malformed and skipped")
     return out

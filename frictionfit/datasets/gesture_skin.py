@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 import zipfile
 from collections import Counter
 from pathlib import Path
@@ -27,7 +28,7 @@ import numpy as np
 
 from frictionfit._types import PathType
 from frictionfit.errors import DatasetError, RecordingError
-from frictionfit.recording import Recording, read_recording, validate
+from frictionfit.recording import DatasetWarning, Recording, read_recording, validate
 
 __all__ = ["GESTURE_UNITS", "frames_of", "load", "recording_from_frames", "taxel_names"]
 
@@ -190,7 +191,7 @@ def _read_one(path: Path) -> Recording:
     return rec.with_problems(problems)
 
 
-def load(path: PathType) -> list[Recording]:
+def load(path: PathType, strict: bool = False) -> list[Recording]:
     """Read a folder of gesture recordings (interchange format and/or ``.npz``), by file name.
 
     Parameters
@@ -211,7 +212,9 @@ def load(path: PathType) -> list[Recording]:
     DatasetError
         The folder is missing or empty, or recordings disagree on the taxel matrix.
     RecordingError
-        A file is malformed (names the file, and the channel where one is at fault).
+        With ``strict``, a file is malformed (names the file, and the channel where one is
+        at fault); by default it is left out with a
+        :class:`~frictionfit.recording.DatasetWarning`.
     """
     folder = Path(path)
     if not folder.is_dir():
@@ -219,7 +222,17 @@ def load(path: PathType) -> list[Recording]:
     paths = sorted([*folder.glob("*.csv"), *folder.glob("*.npz")], key=lambda p: p.name)
     if not paths:
         raise DatasetError(f"{folder}: no gesture recordings (<name>.csv + .json, or <name>.npz)")
-    recs = [_read_one(p) for p in paths]
+    read = []
+    for p in paths:
+        try:
+            read.append((p, _read_one(p)))
+        except RecordingError as exc:
+            if strict:
+                raise
+            warnings.warn(f"skipped {exc}", DatasetWarning, stacklevel=2)
+    if not read:
+        raise DatasetError(f"{folder}: none of its {len(paths)} gesture recordings could be read")
+    paths, recs = [p for p, _ in read], [r for _, r in read]
     shape = _grid(recs[0])[:2]
     seen: Counter[tuple[str, str]] = Counter()
     for p, rec in zip(paths, recs, strict=True):

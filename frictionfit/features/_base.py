@@ -31,6 +31,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
+from frictionfit.errors import DatasetError
 from frictionfit.recording import Recording
 
 __all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key", "median_over_motions"]
@@ -167,16 +168,28 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         return x
 
     def fit(self, X: Sequence[Recording], y=None) -> RecordingFeatures:
-        """Learn the fill value of each feature: its median over ``X`` (0 where all are NaN)."""
-        self._fit_rows(self._rows(X))
+        """Learn the fill value of each feature: its median over ``X`` (0 where all are NaN).
+
+        A training recording none of whose features can be computed raises
+        :class:`~frictionfit.errors.DatasetError` naming it: a row of fills would teach
+        the classifier the training medians as that recording's class.
+        """
+        self._fit_rows(self._rows(X), X)
         return self
 
     def fit_transform(self, X: Sequence[Recording], y=None, **fit_params) -> np.ndarray:
         rows = self._rows(X)
-        self._fit_rows(rows)
+        self._fit_rows(rows, X)
         return self._filled(rows, X)
 
-    def _fit_rows(self, rows: np.ndarray) -> None:
+    def _fit_rows(self, rows: np.ndarray, X: Sequence[Recording]) -> None:
+        empty = [r.name for r, row in zip(_as_list(X), rows, strict=True)
+                 if row.size and not np.isfinite(row).any()]
+        if empty:
+            raise DatasetError(
+                f"{type(self).__name__}: no feature of {len(empty)} training recording(s) "
+                f"could be computed ({', '.join(empty[:3])}{', ...' if len(empty) > 3 else ''}"
+                "); see the warnings above for why, and leave them out of training")
         self.n_features_in_ = 1
         self.n_features_out_ = rows.shape[1]
         finite = np.isfinite(rows)

@@ -1,0 +1,40 @@
+"""Reading recordings for a command: skipped files named on stderr, counts said."""
+
+from __future__ import annotations
+
+import warnings
+
+import typer
+
+
+def fail(message: str, code: int = 1):
+    """Print ``error: message`` on stderr and leave with ``code``."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def load_recordings(spec: str, strict: bool = False) -> list:
+    """The recordings of ``KIND:PATH``; each one left out is named with its reason on stderr,
+    then how many were used (``strict``: the first bad one stops the command)."""
+    from frictionfit.datasets import load_dataset
+    from frictionfit.errors import FrictionfitError
+    from frictionfit.recording import DatasetWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DatasetWarning)
+        try:
+            recordings = load_dataset(spec, strict=strict)
+        except FrictionfitError as exc:
+            fail(str(exc))
+    skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
+    for w in caught:
+        if w in skipped:
+            typer.echo(str(w.message), err=True)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not recordings:
+        fail(f"dataset {spec!r} holds no recordings")
+    if skipped:
+        typer.echo(f"using {len(recordings)} recordings; {len(skipped)} skipped (named above; "
+                   "--strict stops at the first)", err=True)
+    return recordings
