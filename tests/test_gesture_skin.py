@@ -10,7 +10,7 @@ import pytest
 from frictionfit.datasets import load_dataset
 from frictionfit.datasets.gesture_skin import frames_of, load, recording_from_frames, taxel_names
 from frictionfit.errors import DatasetError, RecordingError
-from frictionfit.recording import Recording, write_recording
+from frictionfit.recording import DatasetWarning, Recording, write_recording
 
 
 def write_npz(path, frames, **keys):
@@ -89,13 +89,16 @@ def test_nan_frames_are_flagged_not_hidden(tmp_path, frames):
 def test_malformed_npz_names_the_file(tmp_path, frames, keys, match):
     write_npz(tmp_path / "a.npz", keys.pop("frames", frames), **keys)
     with pytest.raises(RecordingError, match=match):
-        load(tmp_path)
+        load(tmp_path, strict=True)
+    with pytest.warns(DatasetWarning, match="skipped .*" + match):  # the only file: none left
+        with pytest.raises(DatasetError, match="none of its 1 gesture recordings could be read"):
+            load(tmp_path)
 
 
 def test_a_file_that_is_not_npz(tmp_path):
     (tmp_path / "junk.npz").write_text("not a zip")
     with pytest.raises(RecordingError, match=r"junk\.npz: cannot read npz"):
-        load(tmp_path)
+        load(tmp_path, strict=True)
 
 
 def _write(tmp_path, names, units="kPa", meta=None):
@@ -117,7 +120,7 @@ def _write(tmp_path, names, units="kPa", meta=None):
 def test_malformed_interchange_names_file_and_channel(tmp_path, names, units, match):
     _write(tmp_path, names, units)
     with pytest.raises(RecordingError, match=match):
-        load(tmp_path)
+        load(tmp_path, strict=True)
 
 
 def test_duplicate_taxel_in_memory():
@@ -129,18 +132,18 @@ def test_duplicate_taxel_in_memory():
 def test_missing_label_in_sidecar(tmp_path):
     _write(tmp_path, ["r0c0", "r0c1"], meta={"person": "p0"})
     with pytest.raises(RecordingError, match=r"g\.csv: metadata lacks 'label'"):
-        load(tmp_path)
+        load(tmp_path, strict=True)
 
 
 def test_folder_errors(tmp_path, frames):
     with pytest.raises(DatasetError, match="not a folder of gesture recordings"):
         load(tmp_path / "nowhere")
     with pytest.raises(DatasetError, match="no gesture recordings"):
-        load(tmp_path)
+        load(tmp_path, strict=True)
     write_npz(tmp_path / "a.npz", frames)
     write_npz(tmp_path / "b.npz", np.zeros((12, 4, 4)))
     with pytest.raises(DatasetError, match=r"b\.npz: taxel matrix \(4, 4\) differs from \(3, 4\)"):
-        load(tmp_path)
+        load(tmp_path, strict=True)
 
 
 def test_recording_from_frames_needs_3d():
