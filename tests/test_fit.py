@@ -33,7 +33,11 @@ def test_nan_samples_are_masked_not_propagated():
     res = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model="elastic_plastic", chunk_size=4)
     assert Status(int(res.status[1])) is Status.INSUFFICIENT_DATA
     assert np.isfinite(res.chi2[0]) and res.status[0] != Status.NONFINITE
-    assert len(res.to_frame()) == 4
+    frame = res.to_frame()
+    assert len(frame) == 4
+    # nothing was fitted to the empty trial: its numbers are NaN, not the starting point
+    assert frame.filter(regex=r"^(k|f_kin|offset)(_stderr)? \[").iloc[1].isna().all()
+    assert frame.filter(regex=r"^(k|f_kin|offset) \[").iloc[0].notna().all()
 
 
 def test_same_input_gives_bit_identical_results():

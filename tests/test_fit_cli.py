@@ -1,5 +1,7 @@
 """``frictionfit fit`` end to end: a row per motion x channel, bad files named, options."""
 
+import json
+
 import numpy as np
 import pandas as pd
 from typer.testing import CliRunner
@@ -9,13 +11,72 @@ from frictionfit.recording import Event, Recording, write_recording
 from frictionfit.simulation.trials import simulate_trials
 
 
-def _measurement(tmp_path):
+def _measurement(tmp_path, name="m1", step=1):
+    """Two 2-s motions on two channels at 1 kHz / ``step``, written as ``name``."""
     ts = simulate_trials("elastic_plastic", 2, seed=4, snr_db=30)
-    samples = np.concatenate([ts.y.T, ts.y.T])  # two 2-s motions, two channels
+    samples = np.concatenate([ts.y.T, ts.y.T])[::step]
     events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
               for k in range(2) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
-    rec = Recording.from_arrays(samples, 1000.0, ["index_x", "thumb_x"], events=events)
-    write_recording(rec, tmp_path / "m1")
+    rec = Recording.from_arrays(samples, 1000.0 / step, ["index_x", "thumb_x"], events=events)
+    write_recording(rec, tmp_path / name)
+    return tmp_path / f"{name}.csv"
+
+
+def test_recordings_at_two_rates_are_each_fitted_on_their_own_grid(tmp_path):
+    _measurement(tmp_path, "fast")
+    _measurement(tmp_path, "slow", step=2)  # 500 Hz
+    out = tmp_path / "fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    frame = pd.read_csv(out).set_index("trial")
+    fast, slow = frame.loc["fast/motion1/index_x"], frame.loc["slow/motion1/index_x"]
+    # on the 1 kHz grid the 500 Hz trial had R^2 0.009; k rides its ridge with the
+    # movement duration, so the kinetic friction is the level compared
+    assert slow["r2"] > 0.9 and fast["r2"] > 0.9
+    assert abs(slow["f_kin [N]"] / fast["f_kin [N]"] - 1) < 0.05
+
+
+def test_a_rate_mismatch_is_said_and_skips_the_recording(tmp_path):
+    _measurement(tmp_path, "good")
+    bad = _measurement(tmp_path, "liar")
+    side = json.loads(bad.with_suffix(".json").read_text())
+    side["sample_rate_hz"] = 500.0  # the data are at 1 kHz
+    bad.with_suffix(".json").write_text(json.dumps(side))
+    out = tmp_path.parent / f"{tmp_path.name}-fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "skipped " in result.output and "liar.csv: median sample interval 1 ms does not " \
+        "match sample_rate_hz=500" in result.output
+    assert "(1 of 2 recordings)" in result.output
+    assert {t.split("/")[0] for t in pd.read_csv(out)["trial"]} == {"good"}
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
+                                      "--out", str(out), "--strict"])
+    assert result.exit_code == 2 and "liar.csv: median sample interval" in result.output
+
+
+def test_problems_found_on_reading_reach_the_output(tmp_path):
+    path = _measurement(tmp_path)
+    lines = path.read_text().splitlines()
+    for i in range(500, 520):  # a NaN burst in index_x: listed, the recording still fitted
+        cells = lines[i].split(",")
+        cells[1] = "nan"
+        lines[i] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(path), "--model", "elastic_plastic",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "m1.csv: [nonfinite] channel 'index_x': 20 NaN/inf sample(s)" in result.output
+    assert pd.read_csv(out)["problems"].str.contains("channel 'index_x': 20 NaN/inf").all()
+
+
+def test_an_unwritable_output_is_refused_before_fitting(tmp_path):
+    path = _measurement(tmp_path)
+    result = CliRunner().invoke(app, ["fit", str(path), "--out", str(tmp_path / "nodir/x.csv")])
+    assert result.exit_code == 2 and "folder" in result.output and "does not exist" in \
+        result.output and "fitting" not in result.output
 
 
 def test_fit_plots_fixes_and_ties(tmp_path):

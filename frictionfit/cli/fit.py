@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import typer
 
 
@@ -35,14 +38,18 @@ def fit(
     scheduler: str = typer.Option(None, help="Dask scheduler address (e.g. tcp://host:8786): "
                                   "partition the trials across its workers; results equal the "
                                   "local ones up to rounding."),
+    strict: bool = typer.Option(False, help="Stop at the first recording that cannot be used "
+                                "(default: skip it, naming it and why)."),
 ) -> None:
-    """Fit every non-preparatory motion x channel; one row per trial with status and stderr."""
-    import numpy as np
+    """Fit every non-preparatory motion x channel; one row per trial with status and stderr.
+
+    Recordings at different sample rates are fitted on their own time grids; problems
+    found on reading are printed and kept in the 'problems' column; a recording whose
+    problems make its numbers wrong is skipped by name (--strict: stop)."""
+    import pandas as pd
 
     from frictionfit.errors import FrictionfitError
     from frictionfit.fit import fit_report, fit_trials
-    from frictionfit.recording import read_recording
-    from frictionfit.segmentation import segment
 
     if uncertainty not in ("none", "laplace", "emcee", "auto"):
         raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
@@ -56,61 +63,122 @@ def fit(
         raise typer.BadParameter(f"{fix}: write NAME=VALUE, e.g. tau=0.1",
                                  param_hint="--fix") from None
     priors = _priors(prior)
+    _check_out(out)
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    ys, t_outs, t_backs, ids, groups, t = [], [], [], [], [], None
-    for f in files:
-        try:
-            motions = segment(read_recording(f, on_error="flag"))
-        except FrictionfitError as exc:
-            typer.echo(f"skipped: {exc}", err=True)  # one bad file never sinks the batch
-            continue
-        for m in motions:
-            if t is None:
-                t = m.t
-            n = min(t.size, m.t.size)
-            for j, ch in enumerate(m.channels):
-                y = np.full(t.size, np.nan)
-                y[:n] = m.samples[:n, j]
-                ys.append(y)
-                t_outs.append(m.t_out)
-                t_backs.append(m.t_back)
-                ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
-                groups.append(f"{m.recording}/motion{m.index}")
-    if not ys:
+    batches, problems, used = _trials(files, strict)
+    if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
-    typer.echo(f"fitting {len(ys)} trials ({len(files)} recordings), model={model} ...")
-    y, drive_input = np.asarray(ys), (np.asarray(t_outs), np.asarray(t_backs))
+    n_trials = sum(len(b.ids) for b in batches.values())
+    typer.echo(f"fitting {n_trials} trials ({used} of {len(files)} recordings), "
+               f"model={model} ...")
     options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
-                   fix=fixed, tie=tie, groups=np.asarray(groups), priors=priors)
-    try:
-        if scheduler:
-            from frictionfit.distributed import fit_distributed
+                   fix=fixed, tie=tie, priors=priors)
+    frames, wall, first = [], 0.0, None
+    for batch in batches.values():  # one batch per sample interval: each on its own time grid
+        y, drive_input = np.asarray(batch.ys), (np.asarray(batch.t_outs),
+                                                np.asarray(batch.t_backs))
+        try:
+            if scheduler:
+                from frictionfit.distributed import fit_distributed
 
-            result = fit_distributed(y, t, drive_input, scheduler=scheduler, **options)
-        else:
-            result = fit_trials(y, t, drive_input, **options)
-    except (FrictionfitError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
-    frame = result.to_frame(ids)
-    if uncertainty != "none":
-        frame = frame.merge(_posterior(result, y, t, drive_input, uncertainty, chains,
-                                       scheduler).to_frame(ids), on="trial")
+                result = fit_distributed(y, batch.t, drive_input, scheduler=scheduler,
+                                         groups=np.asarray(batch.groups), **options)
+            else:
+                result = fit_trials(y, batch.t, drive_input, groups=np.asarray(batch.groups),
+                                    **options)
+        except (FrictionfitError, ValueError) as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        frame = result.to_frame(batch.ids)
+        if uncertainty != "none":
+            frame = frame.merge(_posterior(result, y, batch.t, drive_input, uncertainty, chains,
+                                           scheduler).to_frame(batch.ids), on="trial")
+        frame.insert(1, "problems", [problems.get(i.split("/")[0], "") for i in batch.ids])
+        frames.append(frame)
+        wall += result.wall_s
+        first = first or result
+        if plot is not None:
+            from frictionfit.fit import plot_fit
+
+            plot.mkdir(parents=True, exist_ok=True)
+            for i, trial_id in enumerate(batch.ids):
+                plot_fit(result, i, batch.t, batch.ys[i],
+                         plot / (trial_id.replace("/", "__") + ".png"), title=trial_id)
+    frame = pd.concat(frames, ignore_index=True)
     if out.suffix == ".parquet":
         frame.to_parquet(out)
     else:
         frame.to_csv(out, index=False)
-    if plot is not None:
-        from frictionfit.fit import plot_fit
-
-        plot.mkdir(parents=True, exist_ok=True)
-        for i, trial_id in enumerate(ids):
-            plot_fit(result, i, t, ys[i], plot / (trial_id.replace("/", "__") + ".png"))
     counts = frame["status"].value_counts().to_dict()
-    typer.echo(f"{len(frame)} trials in {result.wall_s:.1f} s; status {counts}; wrote {out}")
+    typer.echo(f"{len(frame)} trials in {wall:.1f} s; status {counts}; wrote {out}")
     if report:
-        typer.echo(fit_report(result, 0))
+        typer.echo(fit_report(first, 0))
+
+
+@dataclass
+class _Batch:
+    """Trials of one sample interval: the time grid of its first motion, one row per trial."""
+
+    t: np.ndarray
+    ys: list = field(default_factory=list)
+    t_outs: list = field(default_factory=list)
+    t_backs: list = field(default_factory=list)
+    ids: list = field(default_factory=list)
+    groups: list = field(default_factory=list)
+
+
+def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[str, str], int]:
+    """Motions x channels of ``files``, batched by sample interval; each recording's problems
+    (named on stderr); how many recordings were used. A recording that cannot be read or
+    segmented, or whose problems make its numbers wrong, is skipped by name (``strict``:
+    the command stops)."""
+    from frictionfit.errors import FrictionfitError, RecordingError
+    from frictionfit.recording import read_recording
+    from frictionfit.segmentation import segment
+
+    batches: dict[float, _Batch] = {}
+    problems: dict[str, str] = {}
+    used = 0
+    for f in files:
+        try:
+            rec = read_recording(f, on_error="flag")
+            for p in rec.problems:
+                typer.echo(f"{f}: [{p.kind}] {p}", err=True)
+            if rec.disqualified:
+                raise RecordingError(f"{rec.disqualified[0]}", path=f)
+            motions = segment(rec)
+        except FrictionfitError as exc:
+            if strict:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+            typer.echo(f"skipped {exc}", err=True)  # one bad file never sinks the batch
+            continue
+        used += 1
+        problems[rec.name] = "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
+        for m in motions:
+            batch = batches.setdefault(round(float(m.t[1] - m.t[0]), 12), _Batch(m.t))
+            n = min(batch.t.size, m.t.size)
+            for j, ch in enumerate(m.channels):
+                y = np.full(batch.t.size, np.nan)
+                y[:n] = m.samples[:n, j]
+                batch.ys.append(y)
+                batch.t_outs.append(m.t_out)
+                batch.t_backs.append(m.t_back)
+                batch.ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
+                batch.groups.append(f"{m.recording}/motion{m.index}")
+    return batches, problems, used
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an output path that cannot be written, before any fitting."""
+    if out.suffix not in (".csv", ".parquet"):
+        raise typer.BadParameter(f"{out}: write .csv or .parquet", param_hint="--out")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise typer.BadParameter(f"{out}: folder {folder} does not exist", param_hint="--out")
+    if not os.access(folder, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        raise typer.BadParameter(f"{out}: not writable", param_hint="--out")
 
 
 def _posterior(result, y, t, drive_input, method: str, chains: Path | None, scheduler: str | None):

@@ -99,6 +99,9 @@ def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
         else status_of(len(free), converged[i], u[i], stats["chi2"][i], stats["cond"][i],
                        t_mask[i], saturated=opts["saturated"][i])
         for i in range(u.shape[0])], dtype=np.int64)
+    for i in np.flatnonzero(status == Status.INSUFFICIENT_DATA):  # no fit: no numbers
+        stats["values"][i] = {k: np.nan for k in stats["values"][i]}
+        stats["stderr"][i] = {k: np.nan for k in stats["stderr"][i]}
     return dict(stats, u=u, steps=steps, status=status, free=free)
 
 

@@ -12,7 +12,7 @@ from frictionfit.fit.result import FitResult
 __all__ = ["plot_fit"]
 
 
-def plot_fit(result: FitResult, i: int, t, y, path) -> Path:
+def plot_fit(result: FitResult, i: int, t, y, path, title: str | None = None) -> Path:
     """Write a PNG of trial ``i``: data (N) vs. fit against time (s), and the residuals.
 
     Parameters
@@ -25,6 +25,9 @@ def plot_fit(result: FitResult, i: int, t, y, path) -> Path:
         Sample times (s) and the trial's force (N, NaN where missing).
     path : str or Path
         Output file (``.png``).
+    title : str, optional
+        The trial's name in the title (e.g. ``recording/motion1/index_x``); default
+        ``trial <i>``.
 
     Returns
     -------
@@ -44,7 +47,7 @@ def plot_fit(result: FitResult, i: int, t, y, path) -> Path:
     top.plot(t, y, ".", ms=2, color="0.5", label="data")
     top.plot(t, fit, "-", color="C3", lw=1.5, label=f"fit: {result.model[i]}")
     status = Status(int(result.status[i])).name.lower()
-    top.set_title(f"trial {i}: {status}, R^2 = {result.r2[i]:.4f}")
+    top.set_title(f"{title or f'trial {i}'}: {status}, R^2 = {result.r2[i]:.4f}")
     top.set_ylabel("force [N]")
     top.legend(loc="best")
     bottom.plot(t, y - fit, ".", ms=2, color="C0")
