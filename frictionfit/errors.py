@@ -14,6 +14,7 @@ __all__ = [
     "DatasetError",
     "FitError",
     "FrictionfitError",
+    "ModelError",
     "RecordingError",
     "Status",
 ]
@@ -47,6 +48,15 @@ class RecordingError(FrictionfitError, ValueError):
 
 class DatasetError(FrictionfitError, ValueError):
     """A dataset folder is missing, empty or inconsistent."""
+
+
+class ModelError(FrictionfitError, ValueError):
+    """A trained-model file is missing, damaged, untrusted or does not fit the data."""
+
+    def __init__(self, problem: str, *, path: object = None):
+        self.path = None if path is None else str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}" if self.path else problem)
 
 
 class FitError(FrictionfitError, RuntimeError):

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import joblib
 import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
 from frictionfit.calibration import CalibrationWarning
 from frictionfit.cli import app
+from frictionfit.model_file import load_model
 from frictionfit.recording import write_recording
 from frictionfit.simulation.measurements import simulate_measurements
 
@@ -32,11 +32,11 @@ def folders(tmp_path_factory):
 
 def test_train_then_predict_round_trip(folders, tmp_path):
     train, test = folders
-    model = tmp_path / "m.joblib"
+    model = tmp_path / "m.skops"
     result = runner.invoke(app, ["train", "--dataset", f"recordings:{train}", "--features",
                                  "handcrafted", "--classifier", "knn", "--out", str(model)])
     assert result.exit_code == 0, result.output
-    saved = joblib.load(model)
+    saved = load_model(model)
     assert saved["labels"] == sorted(LABELS)
     assert saved["feature_names"][0] == "thumb_x:out_peak [N]"
     assert saved["n_train"] == 24 and saved["frictionfit_version"]
@@ -108,11 +108,90 @@ def test_evaluate_all_writes_one_row_per_combination(folders, tmp_path):
 
 
 def test_errors_name_the_problem(folders, tmp_path):
-    result = runner.invoke(app, ["predict", str(tmp_path / "none.joblib"), "--dataset",
+    result = runner.invoke(app, ["predict", str(tmp_path / "none.skops"), "--dataset",
                                  f"recordings:{folders[1]}"])
-    assert result.exit_code == 1 and "none.joblib not found" in result.output
+    assert result.exit_code == 1 and "none.skops: model file not found" in result.output
     result = runner.invoke(app, ["evaluate", "--dataset", f"recordings:{folders[0]}",
                                  "--protocol", "leave-one-person-out"])
     assert result.exit_code == 1 and "no metadata 'person'" in result.output
     result = runner.invoke(app, ["train", "--dataset", "nowhere:x"])
     assert result.exit_code == 1 and "unknown dataset kind 'nowhere'" in result.output
+
+
+class _Boom:
+    """Unpickling this writes a marker file: the code a crafted model file would run."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+class _Inert:
+    """A type no model file of frictionfit holds."""
+
+    value = 1
+
+
+@pytest.fixture(scope="module")
+def model_file(folders, tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "m.skops"
+    result = runner.invoke(app, ["train", "--dataset", f"recordings:{folders[0]}", "--features",
+                                 "handcrafted", "--classifier", "svm-ovo", "--out", str(path)])
+    assert result.exit_code == 0, result.output
+    return path
+
+
+def test_a_crafted_or_damaged_model_file_is_refused_and_runs_no_code(folders, tmp_path,
+                                                                     model_file):
+    import pickle
+
+    import skops.io
+
+    marker = tmp_path / "ran"
+    pickled = tmp_path / "evil.joblib"
+    pickled.write_bytes(pickle.dumps({"pipeline": _Boom(str(marker))}))
+    crafted = tmp_path / "evil.skops"
+    skops.io.dump({"pipeline": _Inert()}, crafted)
+    half = tmp_path / "half.skops"
+    half.write_bytes(model_file.read_bytes()[: model_file.stat().st_size // 2])
+    (tmp_path / "empty.skops").write_bytes(b"")
+    (tmp_path / "garbage.skops").write_bytes(b"\x00garbage" * 50)
+    cases = {
+        pickled: "evil.joblib: not a model written by `frictionfit train` (a pickle/joblib file",
+        crafted: "evil.skops: refused: the file holds types frictionfit does not trust "
+                 "['test_cli_classify._Inert']",
+        half: "half.skops: not a model written by `frictionfit train`",
+        tmp_path / "empty.skops": "empty.skops: the model file is empty",
+        tmp_path / "garbage.skops": "garbage.skops: not a model written by `frictionfit train`",
+    }
+    for path, words in cases.items():
+        result = runner.invoke(app, ["predict", str(path), "--dataset",
+                                     f"recordings:{folders[1]}"])
+        assert result.exit_code == 1 and words in result.output, (path.name, result.output)
+    assert not marker.exists()
+
+
+def test_predict_refuses_recordings_unlike_the_training_ones(folders, tmp_path, model_file):
+    from frictionfit.recording import Recording
+
+    rec = next(iter(sorted(folders[1].glob("*.csv"))))
+    other = tmp_path / "fs"
+    other.mkdir()
+    from frictionfit.recording import read_recording
+
+    r = read_recording(rec, on_error="flag")
+    renamed = Recording(r.t, r.samples, r.sample_rate_hz,
+                        tuple(type(c)(c.name.replace("index", "middle"), c.unit)
+                              for c in r.channels), events=r.events, metadata=r.metadata,
+                        name=r.name)
+    write_recording(renamed, other / r.name)
+    result = runner.invoke(app, ["predict", str(model_file), "--dataset", f"recordings:{other}"])
+    assert result.exit_code == 1
+    assert f"{r.name}: channels ['index_x [N]', 'index_y [N]'] that" in result.output
+    assert "m.skops was trained on" in result.output or "are missing" in result.output
+    result = runner.invoke(app, ["predict", str(model_file), "--dataset", f"gesture:{other}"])
+    assert result.exit_code == 1
+    assert "was trained on 'recordings' recordings (handcrafted features), not 'gesture'" \
+        in result.output

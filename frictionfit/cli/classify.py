@@ -73,7 +73,7 @@ def train(
     features: str = typer.Option("physical", help=FEATURES_HELP),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     project: str = typer.Option("auto", help=PROJECT_HELP),
-    out: Path = typer.Option(Path("model.joblib"), help="Where to save the model."),
+    out: Path = typer.Option(Path("model.skops"), help="Where to save the model (skops)."),
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
     calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on the "
                                    "training sessions held out in turn."),
@@ -81,12 +81,14 @@ def train(
                               "over this many feature draws per recording (0: point values)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
-    """Train features -> (session standardisation) -> scaler -> (projection) -> classifier."""
-    import joblib
+    """Train features -> (session standardisation) -> scaler -> (projection) -> classifier.
 
+    The model is saved with skops (loading it runs no code), with what it was trained
+    on: feature set, dataset kind, channels and classes."""
     from frictionfit.calibration import CalibratedPipeline
     from frictionfit.classify import labels_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
+    from frictionfit.model_file import save_model
 
     recordings = _load(dataset, strict)
     try:
@@ -99,13 +101,15 @@ def train(
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
     fitted = model.pipeline_ if calibrate else model
-    joblib.dump({
+    save_model({
         "pipeline": model,
         "features": features,
         "classifier": classifier,
         "project": "lda" if "project" in fitted.named_steps else "none",
         "feature_names": list(fitted["features"].get_feature_names_out()),
         "labels": sorted(map(str, set(y))),
+        "dataset_kind": dataset.partition(":")[0],
+        "channels": [[c.name, c.unit] for c in recordings[0].channels],
         "n_train": len(recordings),
         "frictionfit_version": _version(),
     }, out)
@@ -141,19 +145,24 @@ def predict(
     'probability' is that of the predicted class ('abstain' where it is below
     --abstain); top1..3 are the most probable classes.
     """
-    import joblib
     import numpy as np
     import pandas as pd
 
     from frictionfit.calibration import top_classes
+    from frictionfit.errors import ModelError
+    from frictionfit.model_file import load_model
 
-    if not model.is_file():
-        _fail(f"model file {model} not found")
-    saved = joblib.load(model)
-    if not isinstance(saved, dict) or "pipeline" not in saved:
-        _fail(f"{model} is not a model saved by `frictionfit train`")
+    try:
+        saved = load_model(model)
+    except ModelError as exc:
+        _fail(str(exc))
     pipeline = saved["pipeline"]
+    kind = dataset.partition(":")[0]
+    if saved.get("dataset_kind") not in (None, kind):
+        _fail(f"{model} was trained on {saved['dataset_kind']!r} recordings "
+              f"({saved['features']} features), not {kind!r}")
     recordings = _load(dataset, strict)
+    _check_channels(saved, model, recordings)
     try:
         predicted = pipeline.predict(recordings)
         proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
@@ -173,6 +182,11 @@ def predict(
     labels = [r.label for r in recordings]
     if all(lab is not None for lab in labels):
         table["true"] = labels
+        unseen = sorted({str(lab) for lab in labels} - set(saved.get("labels", [])))
+        if unseen:
+            typer.echo(f"{sum(str(lab) in unseen for lab in labels)} recording(s) of classes "
+                       f"the model never saw in training: {unseen} (counted wrong below)",
+                       err=True)
     if top is not None:
         table = pd.concat([table, top], axis=1)
     table.to_csv(out, index=False)
@@ -186,6 +200,18 @@ def predict(
                        f"(top probability below {abstain:g}); accuracy over the "
                        f"{int(decided.sum())} decided")
         typer.echo(f"accuracy: {acc:.3f}")
+
+
+def _check_channels(saved: dict, model: Path, recordings: list) -> None:
+    """Stop when a recording lacks a channel (name and unit) the model was trained on,
+    naming the recording, the channels and the model file."""
+    want = [tuple(c) for c in saved.get("channels", [])]
+    for rec in recordings:
+        have = [(c.name, c.unit) for c in rec.channels]
+        if want and not set(want) <= set(have):
+            missing = [f"{n} [{u}]" for n, u in want if (n, u) not in have][:4]
+            _fail(f"{rec.name}: channels {missing} that {model} was trained on are missing "
+                  f"(it has {[f'{n} [{u}]' for n, u in have][:6]})")
 
 
 def evaluate(
