@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 from frictionfit.acquisition.recorder import RecordingWriter, record
 from frictionfit.acquisition.stream import SensorStream
 from frictionfit.cli import app
+from frictionfit.errors import AcquisitionError
 from frictionfit.recording import Channel, Event, read_recording
 
 CLI = [sys.executable, "-c", "import sys; from frictionfit.cli import main; main()"]
@@ -71,6 +72,41 @@ def test_writer_sidecar_first_and_rows_readable_before_close(tmp_path):
     np.testing.assert_allclose(rec.channel("a_x"), np.arange(5) / 3, rtol=1e-6)
     writer.close({"status": "complete"})
     assert read_recording(tmp_path / "w").extra["acquisition"]["status"] == "complete"
+
+
+def test_an_event_reaches_the_sidecar_before_any_flush(tmp_path):
+    writer = RecordingWriter(tmp_path / "w", [Channel("a_x", "N")], 1000.0)
+    writer.start()
+    writer.append(np.arange(3), np.zeros((3, 1)))
+    writer.add_event(Event(0.05, "move", "p2"))  # then the process dies: no flush, no close
+    side = json.loads((tmp_path / "w.json").read_text())
+    writer._csv.close()  # what the dying process's OS does; no frictionfit code runs
+    assert side["events"] == [{"t": 0.05, "kind": "move", "target": "p2"}]
+    assert side["acquisition"] == {"status": "recording"}
+
+
+def test_an_existing_recording_is_never_overwritten_without_asking(tmp_path):
+    with FakeOptoForce(tmp_path / "tty") as _:
+        first = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                         "--duration", "0.5", "--out", str(tmp_path / "rec")])
+    assert first.exit_code == 0, first.output
+    before = (tmp_path / "rec.csv").read_bytes()
+    rows = len(before.splitlines()) - 1
+    again = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                     "--duration", "0.5", "--out", str(tmp_path / "rec")])
+    assert again.exit_code == 1
+    assert f"rec.csv already exists ({rows} rows); choose another --out or pass --overwrite" \
+        in again.output
+    assert (tmp_path / "rec.csv").read_bytes() == before
+    writer = RecordingWriter(tmp_path / "rec", [Channel("a_x", "N")], 1000.0)
+    with pytest.raises(AcquisitionError, match="rec.csv already exists"):
+        writer.start()
+    assert (tmp_path / "rec.csv").read_bytes() == before
+    with FakeOptoForce(tmp_path / "tty") as _:
+        forced = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--duration", "0.5", "--out", str(tmp_path / "rec"),
+                                          "--overwrite"])
+    assert forced.exit_code == 0, forced.output
 
 
 def test_pulled_cable_reconnects_with_the_gap_marked(tmp_path):
@@ -156,6 +192,8 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     info = CliRunner().invoke(app, ["info", str(out)])
     assert info.exit_code == 0, info.output
     rec = read_recording(out, on_error="flag")
+    assert f"acquisition: interrupted (status 'recording'): {rec.n_samples} rows in the CSV" \
+        in info.output
     missing = sent - corrupted - rec.n_samples
     print(f"SIGKILL after {sent} frames sent: {missing} valid frames missing from the file")
     assert 0 <= missing <= 1000

@@ -134,6 +134,16 @@ def test_a_slide_cut_short_is_flagged_and_left_out(tmp_path):
         assert [r.name for r in load(tmp_path)] == ["Canvas_F120_V20mmps_0"]
     with pytest.raises(RecordingError, match="Linen_F120_V20mmps_0.csv: the slide ends after"):
         load(tmp_path, strict=True)
+    from typer.testing import CliRunner
+
+    from frictionfit.cli import app
+
+    result = CliRunner().invoke(app, ["info", f"fabricslide:{tmp_path}"])
+    assert result.exit_code == 0, result.output
+    assert "Linen_F120_V20mmps_0.csv: the slide ends after" in result.output
+    assert "using 1 recordings; 1 skipped" in result.output and ": 1 recordings" in result.output
+    result = CliRunner().invoke(app, ["info", f"fabricslide:{tmp_path}", "--strict"])
+    assert result.exit_code == 1 and "the slide ends after" in result.output
 
 
 def test_empty_or_missing_folder_is_a_dataset_error(tmp_path):

@@ -43,10 +43,13 @@ class RecordingWriter:
         Nominal rate (Hz) for the sidecar.
     metadata : dict, optional
         Free key/values for the sidecar's ``metadata``.
+    overwrite : bool, default False
+        Replace an existing recording at ``path``; without it :meth:`start` refuses to
+        touch files that hold data.
     """
 
     def __init__(self, path: str | Path, channels: Sequence[Channel], sample_rate_hz: float,
-                 metadata: dict[str, Any] | None = None) -> None:
+                 metadata: dict[str, Any] | None = None, overwrite: bool = False) -> None:
         stem = Path(path)
         stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
         self.csv_path, self.json_path = stem.with_suffix(".csv"), stem.with_suffix(".json")
@@ -55,12 +58,18 @@ class RecordingWriter:
         self.metadata = dict(metadata or {})
         self.events: list[Event] = []
         self.rows_written = 0
+        self.overwrite = overwrite
         self._lines: list[str] = []
         self._lock = threading.Lock()
+        self._sidecar_lock = threading.Lock()
+        self._acquisition: dict[str, Any] = {"status": "recording"}
         self._csv = None
 
     def start(self) -> None:
-        """Write the sidecar, then the CSV header; both reach the disk."""
+        """Write the sidecar, then the CSV header; both reach the disk. An existing
+        recording is refused (:func:`refuse_existing`) unless ``overwrite``."""
+        if not self.overwrite:
+            refuse_existing(self.csv_path)
         self.csv_path.parent.mkdir(parents=True, exist_ok=True)
         self._write_sidecar({"status": "recording"})
         self._csv = open(self.csv_path, "w", encoding="ascii")  # noqa: SIM115 (kept open)
@@ -76,10 +85,11 @@ class RecordingWriter:
             self._lines += lines
 
     def add_event(self, event: Event) -> None:
-        """Record a command (e.g. ``Event(t, "move", "p2")``); it reaches the sidecar at the
-        next flush."""
+        """Record a command (e.g. ``Event(t, "move", "p2")``); the sidecar is rewritten at
+        once, so a crash never loses an event that was sent."""
         with self._lock:
             self.events.append(event)
+        self._write_sidecar(self._acquisition)
 
     def write_rows(self) -> None:
         """Append the queued rows to the CSV and push them to the disk (fsync)."""
@@ -110,15 +120,34 @@ class RecordingWriter:
         os.fsync(self._csv.fileno())
 
     def _write_sidecar(self, acquisition: dict[str, Any]) -> None:
-        empty = Recording(np.empty(0), np.empty((0, len(self.channels))), self.sample_rate_hz,
-                          self.channels, events=tuple(self.events), metadata=self.metadata,
-                          extra={"acquisition": acquisition})
-        tmp = self.json_path.with_suffix(".json.tmp")
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(empty.sidecar(), fh, indent=1)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.json_path)
+        with self._sidecar_lock:  # the protocol's thread adds events while rows are flushed
+            self._acquisition = acquisition
+            with self._lock:
+                events = tuple(self.events)
+            empty = Recording(np.empty(0), np.empty((0, len(self.channels))),
+                              self.sample_rate_hz, self.channels, events=events,
+                              metadata=self.metadata, extra={"acquisition": acquisition})
+            tmp = self.json_path.with_suffix(".json.tmp")
+            with open(tmp, "w", encoding="utf-8") as fh:
+                json.dump(empty.sidecar(), fh, indent=1)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.json_path)
+
+
+def refuse_existing(path: str | Path) -> None:
+    """:class:`~frictionfit.errors.AcquisitionError` if a recording at ``path`` (stem,
+    ``.csv`` or ``.json``) already holds data, naming the file and how many rows it has."""
+    stem = Path(path)
+    stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
+    for file in (stem.with_suffix(".csv"), stem.with_suffix(".json")):
+        if file.exists() and file.stat().st_size > 0:
+            rows = ""
+            if file.suffix == ".csv":
+                with open(file, "rb") as fh:
+                    rows = f" ({max(sum(1 for _ in fh) - 1, 0)} rows)"
+            raise AcquisitionError(f"{file} already exists{rows}; choose another --out or "
+                                   "pass --overwrite to replace it")
 
 
 class _Merger:
@@ -173,6 +202,7 @@ def record(
     on_start: Callable[[float, RecordingWriter], Callable[[], None]] | None = None,
     on_progress: Callable[[dict[str, Any]], None] | None = None,
     flush_s: float = FLUSH_S,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Record connected streams into ``out`` (.csv + .json) until ``duration_s`` or ``stop``.
 
@@ -192,6 +222,9 @@ def record(
         the end. The rubbing protocol starts its command thread here.
     on_progress : callable, optional
         Called after every flush with the current ``acquisition`` summary.
+    overwrite : bool, default False
+        Replace an existing recording at ``out`` (refused otherwise, before any sensor
+        is read).
 
     Returns
     -------
@@ -199,6 +232,8 @@ def record(
         The final ``acquisition`` object, as written to the sidecar.
     """
     stop = stop or threading.Event()
+    if not overwrite:
+        refuse_existing(out)
     rates = {s.rate_hz for s in streams}
     if len(rates) != 1:
         raise AcquisitionError(f"all sensors must run at one rate, got {sorted(rates)} Hz")
@@ -212,7 +247,8 @@ def record(
         raise
     t0 = min(s.first_frame_time for s in streams)
     writer = RecordingWriter(out, [c for s in streams for c in s.channels], rate,
-                             {**(metadata or {}), "ports": [s.url for s in streams]})
+                             {**(metadata or {}), "ports": [s.url for s in streams]},
+                             overwrite=overwrite)
     merger = _Merger([len(s.channels) for s in streams])
     started = time.time()
     writer.start()

@@ -48,7 +48,8 @@ def _progress(quiet: bool, duration: float | None):
 
 
 def _run(streams: list[Any], out: Path, duration: float | None, quiet: bool,
-         metadata: dict[str, Any], on_start: Any = None) -> dict[str, Any]:
+         metadata: dict[str, Any], on_start: Any = None, overwrite: bool = False
+         ) -> dict[str, Any]:
     """Record with SIGINT/SIGTERM ending the recording cleanly; print the summary."""
     import signal
     import threading
@@ -60,7 +61,8 @@ def _run(streams: list[Any], out: Path, duration: float | None, quiet: bool,
                 for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         acq = record(streams, out, duration_s=duration, stop=stop, metadata=metadata,
-                     on_start=on_start, on_progress=_progress(quiet, duration))
+                     on_start=on_start, on_progress=_progress(quiet, duration),
+                     overwrite=overwrite)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -90,6 +92,7 @@ def acquire(
                                     "2 150, 3 50, 4 15, 5 5, 6 1.5 Hz."),
     zero: bool = typer.Option(False, help="Tare the sensors in the DAQ at start."),
     quiet: bool = typer.Option(False, help="No live progress line."),
+    overwrite: bool = typer.Option(False, help="Replace an existing recording at --out."),
 ) -> None:
     """Record OptoForce sensors losslessly into the interchange format.
 
@@ -97,11 +100,14 @@ def acquire(
     loses what was in flight; the port is reopened when it comes back and the gap is
     listed in the sidecar's ``acquisition`` object. Ctrl-C or SIGTERM end cleanly.
     """
+    from frictionfit.acquisition.recorder import refuse_existing
     from frictionfit.errors import AcquisitionError
 
     try:
+        if not overwrite:
+            refuse_existing(out)
         streams = _open_streams(port, name, rate, filter_code, zero, sensitivity)
-        _run(streams, out, duration or None, quiet, {})
+        _run(streams, out, duration or None, quiet, {}, overwrite=overwrite)
     except AcquisitionError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
@@ -138,6 +144,7 @@ def rub(
     servo_id: int = typer.Option(1, help="Dynamixel ID."),
     baud: int = typer.Option(57_600, help="Dynamixel baud rate."),
     quiet: bool = typer.Option(False, help="No live progress line."),
+    overwrite: bool = typer.Option(False, help="Replace an existing recording at --out."),
 ) -> None:
     """Run the rubbing protocol while recording the forces, ready for ``frictionfit fit``.
 
@@ -145,6 +152,7 @@ def rub(
     ``--dwell`` seconds from t = 0.05 s; each command is a ``move`` event in the sidecar.
     """
     from frictionfit.acquisition.protocol import ProtocolRunner, RubbingProtocol
+    from frictionfit.acquisition.recorder import refuse_existing
     from frictionfit.errors import AcquisitionError
 
     try:
@@ -153,6 +161,8 @@ def rub(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     try:
+        if not overwrite:
+            refuse_existing(out)
         drive = _actuator(actuator, p1, servo_id, baud)
         try:
             drive.move_to(p1)
@@ -162,7 +172,7 @@ def rub(
             if label is not None:
                 meta["label"] = label
             runner = ProtocolRunner(protocol, drive)
-            _run(streams, out, protocol.duration_s, quiet, meta, runner.start)
+            _run(streams, out, protocol.duration_s, quiet, meta, runner.start, overwrite)
         finally:
             drive.close()
         if runner.error is not None:

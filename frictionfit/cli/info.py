@@ -12,8 +12,7 @@ def _dataset(spec: str, strict: bool) -> None:
 
     from frictionfit.cli._load import load_recordings
 
-    recs = load_recordings(spec if ":" in spec.split("/")[0] else f"recordings:{spec}",
-                           strict)
+    recs = load_recordings(spec if not Path(spec).is_dir() else f"recordings:{spec}", strict)
     path = spec
     labels = Counter(str(r.label) for r in recs)
     sessions = sorted({r.metadata.get("session") for r in recs}, key=str)
@@ -81,10 +80,11 @@ def info(
     from frictionfit.errors import FrictionfitError
 
     try:
-        if Path(path).is_file() or Path(path).with_suffix(".csv").is_file():
-            _recording(Path(path))
-        else:
+        kind, sep, _ = path.partition(":")
+        if Path(path).is_dir() or (sep and kind.isalpha() and len(kind) > 1):
             _dataset(path, strict)
+        else:
+            _recording(Path(path))
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
