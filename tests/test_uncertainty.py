@@ -88,6 +88,9 @@ def test_tables_carry_quantiles_sd_tau_ess_and_flags(both):
     assert len(long) == 3 * get_model(MODEL).n_params
     row = long[(long.trial == 0) & (long.param == "k")].iloc[0]
     assert row["p16"] < row["median"] < row["p84"] and row["unit"] == "N/mm"
+    printed = str(long)  # every column is printed, none hidden behind '...'
+    assert "..." not in printed and all(c in printed.splitlines()[0]
+                                        for c in ("sd", "tau", "ess", "acceptance"))
 
 
 def test_arviz_corner_and_hdf5_chains(both, tmp_path):

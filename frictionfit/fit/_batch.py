@@ -8,6 +8,7 @@ from collections.abc import Mapping, Sequence
 import jax
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
@@ -28,6 +29,8 @@ from frictionfit.models import FAMILY, PARAMS, get_model
 __all__ = ["SOLVERS", "fit_trials"]
 
 SOLVERS = ("lm", *OPTX_SOLVERS)
+#: Fewest trials for which a fit shows a progress bar (on a terminal).
+PROGRESS_MIN_TRIALS = 64
 
 
 def _at_optimum(model, free, u, data, chunk):
@@ -52,8 +55,12 @@ def _solve(model, free, starts, data, opts):
     cols = list(free)
     if opts["solver"] == "lm":
         cfg = LMConfig(ftol=opts["ftol"], xtol=opts["rtol"], max_steps=opts["max_steps"])
-        u_free, code, steps = solve_pool(normal_fn(model, free), u_all[:, cols], data_all, cfg,
-                                         opts["chunk_size"], threads=opts["threads"])
+        # a bar on a terminal only, for batches long enough to wait for
+        with tqdm(total=len(u_all), desc=f"fitting {model.name}", unit="trial", leave=False,
+                  disable=None if len(u_all) >= PROGRESS_MIN_TRIALS else True) as bar:
+            u_free, code, steps = solve_pool(normal_fn(model, free), u_all[:, cols], data_all,
+                                             cfg, opts["chunk_size"], threads=opts["threads"],
+                                             progress=bar.update)
         converged, nonfinite = code == CONVERGED, code == NONFINITE
     else:
         u_free, converged, steps = solve_rounds(

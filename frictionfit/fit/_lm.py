@@ -158,7 +158,7 @@ def _set_rows(tree, rows, values):
 
 
 def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size: int,
-               threads: int = 1):
+               threads: int = 1, progress: Callable[[int], object] | None = None):
     """Fit every trial (rows of ``u0`` and of each ``data`` leaf) with the batched LM.
 
     Returns ``(u, code, steps)`` as NumPy arrays: the best point, the per-trial code
@@ -174,23 +174,24 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
     pools of 32), 2 threads 1.3x faster than 1; shared (load ~8; 256 trials,
     pools of 128), 2 threads 11.4 s wall against 8.3 s. ``fit_trials`` uses the
     available cores by default.
+    ``progress(k)`` is called as ``k`` more trials finish (e.g. a tqdm bar's ``update``).
     """
     n = u0.shape[0]
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
     if threads == 1:
-        return _solve_serial(normal, u0, data, cfg, pool_size)
+        return _solve_serial(normal, u0, data, cfg, pool_size, progress=progress)
     bounds = np.linspace(0, n, threads + 1).astype(int)
     shares = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     devices = jax.local_devices()
     with ThreadPoolExecutor(max_workers=threads) as ex:
         parts = list(ex.map(lambda i: _solve_serial(
             normal, u0[shares[i]], jax.tree_util.tree_map(lambda a: a[shares[i]], data), cfg,
-            pool_size, devices[i % len(devices)]), range(threads)))
+            pool_size, devices[i % len(devices)], progress), range(threads)))
     return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
 
 
 def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size: int,
-                  device=None):
+                  device=None, progress: Callable[[int], object] | None = None):
     """:func:`solve_pool` in the calling thread: one pool, refilled from the queue, on
     ``device`` (default: JAX's default device)."""
     n, p = u0.shape
@@ -238,4 +239,6 @@ def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_si
         code_out[trials] = pool.code[finished]
         steps_out[trials] = pool.steps[finished]
         owner[finished] = -1
+        if progress is not None and finished.size:
+            progress(int(finished.size))
     return u_out, code_out, steps_out

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
+from tqdm.auto import tqdm
 
 from frictionfit.uncertainty._proposal import Proposal, Proposals
 
@@ -151,7 +152,10 @@ def _run(evaluate, running: list[_Trial], nwalkers: int, moves: list, state: emc
     idx = np.repeat([tr.index for tr in running], nwalkers)
     sampler = emcee.EnsembleSampler(len(running) * nwalkers, state.coords.shape[1],
                                     lambda x: evaluate(x, idx), vectorize=True, moves=moves)
-    state = sampler.run_mcmc(state, steps, progress=False, skip_initial_state_check=True)
+    # A walker still at -inf log-probability whose proposal is -inf too gives
+    # -inf - -inf = NaN in emcee's MH step: a rejection, not an error.
+    with np.errstate(invalid="ignore"):
+        state = sampler.run_mcmc(state, steps, progress=False, skip_initial_state_check=True)
     return state, sampler
 
 
@@ -293,6 +297,7 @@ def run_lockstep(
     coords = Proposals([tr.proposal for tr in running]).rvs(nwalkers, rng).reshape(-1, p)
     state = emcee.State(coords, random_state=rng.get_state())
     results: list[ChainResult | BaseException | None] = [None] * n
+    bar = tqdm(total=n, desc="emcee", unit="trial", leave=False, disable=None)
     try:
         for stage in range(pilot_stages):
             if not running:
@@ -330,8 +335,11 @@ def run_lockstep(
                     keep.append(j)
                 else:
                     results[tr.index] = done
+            bar.update(len(running) - len(keep))
             state, running = _keep(state, running, keep, nwalkers)
     except Exception as exc:  # the shared evaluation failed: every running trial reports it
         for tr in running:
             results[tr.index] = exc
+    finally:
+        bar.close()
     return results

@@ -89,13 +89,26 @@ class Posterior:
         return pd.DataFrame(rows)
 
 
-def posterior_summary(post: Posterior, ids=None) -> pd.DataFrame:
+class SummaryTable(pd.DataFrame):
+    """A DataFrame that prints every row and column (``print`` shows sd, tau and ESS too)."""
+
+    @property
+    def _constructor(self):
+        return SummaryTable
+
+    def __repr__(self) -> str:
+        return self.to_string()
+
+    __str__ = __repr__
+
+
+def posterior_summary(post: Posterior, ids=None) -> SummaryTable:
     """Long table, one row per trial x parameter, for features and reports.
 
     Columns: ``trial, model, param, unit, method, converged, median, sd, p2.5,
     p16, p84, p97.5, tau, ess, acceptance`` (values in the parameter's unit).
     Use ``median`` with ``sd`` (e.g. inverse-variance weights ``1/sd**2``) and
-    drop or down-weight rows with ``converged == False``.
+    drop or down-weight rows with ``converged == False``. Printed whole.
     """
     rows = []
     for i in range(post.n_trials):
@@ -107,7 +120,7 @@ def posterior_summary(post: Posterior, ids=None) -> pd.DataFrame:
                    "acceptance": post.acceptance[i]}
             row.update(zip(QUANTILES, q, strict=True))
             rows.append(row)
-    return pd.DataFrame(rows)
+    return SummaryTable(rows)
 
 
 def to_arviz(post: Posterior, i: int = 0):
