@@ -60,6 +60,25 @@ def test_plot_writes_a_png(simulated, tmp_path):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_plot_writes_to_the_working_folder_and_marks_missing_samples(simulated, tmp_path,
+                                                                      monkeypatch):
+    from frictionfit.cli.plot import missing_spans
+    from frictionfit.recording import read_recording
+
+    out, _ = simulated
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["plot", str(out / "s1_paper-1_01.csv")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "s1_paper-1_01.png").exists() and not (out / "s1_paper-1_01.png").exists()
+    rec = read_recording(out / "s1_paper-1_01.csv", on_error="flag")
+    samples = rec.samples.copy()
+    samples[100:150, 2] = np.nan
+    holed = type(rec)(np.r_[rec.t[:500], rec.t[520:]], np.r_[samples[:500], samples[520:]],
+                      rec.sample_rate_hz, rec.channels)
+    spans = missing_spans(holed)
+    assert spans[0] == (rec.t[100], rec.t[150]) and spans[1] == (rec.t[499], rec.t[520])
+
+
 def test_plot_and_info_name_a_missing_file(tmp_path):
     for cmd in ("plot", "info"):
         result = runner.invoke(app, [cmd, str(tmp_path / "nothing.csv")])

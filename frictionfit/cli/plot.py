@@ -6,17 +6,23 @@ from pathlib import Path
 
 import typer
 
-_SHADE = {"move_out": "tab:orange", "move_back": "tab:orange",
-          "relax_out": "tab:blue", "relax_back": "tab:blue"}
+#: Phase shading, in colours no channel line uses.
+_SHADE = {"move_out": "gold", "move_back": "gold",
+          "relax_out": "lightsteelblue", "relax_back": "lightsteelblue"}
+#: Channel line colours (none of them a shading colour).
+_LINES = ("tab:green", "tab:red", "tab:purple", "tab:brown", "black", "tab:pink", "tab:olive",
+          "tab:cyan")
 
 
 def plot(
     path: Path = typer.Argument(..., help="A recording: <name>.csv, <name>.json or the stem."),
-    out: Path = typer.Option(None, help="PNG to write (default: <name>.png beside the data)."),
+    out: Path = typer.Option(None, help="PNG to write (default: <name>.png in the current "
+                             "folder)."),
     no_events: bool = typer.Option(False, "--no-events",
                                    help="Find the phases from the force alone."),
 ) -> None:
-    """Plot every channel against time, phases shaded (movement orange, relaxation blue)."""
+    """Plot every channel against time, phases shaded (movement yellow, relaxation blue),
+    missing samples (dropped rows, NaN) hatched red."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -32,21 +38,41 @@ def plot(
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    out = out or Path(path).with_suffix("").with_suffix(".png")
-    fig, ax = plt.subplots(figsize=(12, 4.5), constrained_layout=True)
+    out = out or Path(Path(path).with_suffix("").name + ".png")
+    fig, ax = plt.subplots(figsize=(12, 5), constrained_layout=True)
     for m in motions:
         for p in m.phases:
             ax.axvspan(m.t0 + p.start_s, m.t0 + p.stop_s, color=_SHADE[p.kind],
-                       alpha=0.25 if p.kind.startswith("move") else 0.08, lw=0)
+                       alpha=0.35 if p.kind.startswith("move") else 0.25, lw=0)
+    for k, (start, stop) in enumerate(missing_spans(rec)):
+        ax.axvspan(start, stop, facecolor="none", edgecolor="tab:red", hatch="////", lw=0.5,
+                   label="missing samples" if k == 0 else None)
     for j, ch in enumerate(rec.channels):
-        ax.plot(rec.t, rec.samples[:, j], lw=0.8, label=f"{ch.name} [{ch.unit}]")
+        ax.plot(rec.t, rec.samples[:, j], lw=0.8, color=_LINES[j % len(_LINES)],
+                label=f"{ch.name} [{ch.unit}]")
     for e in rec.events:
         ax.axvline(e.t, color="0.4", lw=0.5, ls=":")
     units = sorted({c.unit for c in rec.channels})
     ax.set(xlabel="t [s]", ylabel=f"signal [{', '.join(units)}]",
-           title=f"{rec.name} ({rec.label}): movement orange, relaxation blue, commands dotted")
-    ax.legend(loc="upper right", fontsize=8, ncol=len(rec.channels))
+           title=f"{rec.name} ({rec.label}): movement yellow, relaxation blue, commands dotted")
+    fig.legend(loc="outside lower center", fontsize=8, ncol=len(rec.channels) + 1)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     typer.echo(f"wrote {out} ({len(motions)} motions shaded, {len(rec.problems)} problem(s))")
+
+
+def missing_spans(rec) -> list[tuple[float, float]]:
+    """Time spans (s) with a dropped row (a gap in ``t``) or a NaN in any channel."""
+    import numpy as np
+
+    if rec.n_samples < 2:
+        return []
+    nominal = 1.0 / rec.sample_rate_hz
+    spans = [(float(a), float(b)) for a, b in zip(rec.t[:-1], rec.t[1:], strict=True)
+             if b - a > 1.5 * nominal]
+    bad = ~np.isfinite(rec.samples).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.r_[0, bad.astype(int), 0]))
+    spans += [(float(rec.t[a]), float(rec.t[min(b, rec.n_samples - 1)]))
+              for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return sorted(spans)
