@@ -2,7 +2,7 @@
 
 Two synthetic workloads (clearly not lab data):
 
-* **gestures** (issue 10): a simulated textile-skin set (``simulate_gestures``);
+* **gestures**: a simulated textile-skin set (``simulate_gestures``);
   the 270 published features' extraction time (ms per 3-s gesture), the
   quadratic SVM's prediction time (ms per gesture, features given), and the error
   (1 - accuracy) under leave-one-person-out and person-dependent 5-fold;

@@ -20,19 +20,25 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help: wrapped, never cut at 80 columns
 )
-app.command("demo")(demo.demo)
-app.command("info")(info.info)
-app.add_typer(simulate.app, name="simulate")
-app.command("plot")(plot.plot)
-app.command("fit")(fit.fit)
-app.command("features")(classify.features)
-app.command("train")(classify.train)
-app.command("predict")(classify.predict)
-app.command("evaluate")(classify.evaluate)
-app.command("acquire")(acquire.acquire)
-app.command("rub")(acquire.rub)
-app.command("bench")(bench.bench)
+_COMMANDS = (  # name, function, the one line in `frictionfit --help`
+    ("demo", demo.demo, "The tour on the sample data: read, segment, fit, classify."),
+    ("info", info.info, "Summarise a recording or a dataset and its problems."),
+    ("plot", plot.plot, "PNG of a recording with its phases and missing samples."),
+    ("fit", fit.fit, "Fit the contact model to every motion and channel."),
+    ("features", classify.features, "Write a feature table, one row per recording."),
+    ("train", classify.train, "Train a classifier and save it (skops)."),
+    ("predict", classify.predict, "Classify recordings with a saved model."),
+    ("evaluate", classify.evaluate, "Score a pipeline under a protocol (e.g. per session)."),
+    ("acquire", acquire.acquire, "Record OptoForce sensors without losing a sample."),
+    ("rub", acquire.rub, "Run the rubbing protocol on a gripper while recording."),
+    ("bench", bench.bench, "Benchmark speed against error on simulated data."),
+)
+for _name, _func, _line in _COMMANDS:
+    app.command(_name, short_help=_line)(_func)
+app.add_typer(simulate.app, name="simulate",
+              short_help="Simulate measurements or touch gestures with known truth.")
 
 
 def main() -> None:

@@ -46,7 +46,7 @@ def simulate(
                f"to {out}")
 
 
-@app.command("gestures")
+@app.command("gestures", short_help="Simulated touch gestures on a textile skin.")
 def gestures(
     out: Path = typer.Option(..., help="Folder to write the SYNTHETIC gesture .npz files to."),
     seed: int = typer.Option(0, help="Master seed."),
@@ -54,7 +54,7 @@ def gestures(
     repetitions: int = typer.Option(16, min=1, help="Repetitions of each gesture per person."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
-    """Write simulated touch gestures: people x 7 gestures x repetitions (issue 10)."""
+    """Write simulated touch gestures: people x 7 gestures x repetitions."""
     from frictionfit.simulation.gestures import simulate_gestures
 
     paths = simulate_gestures(out, seed, people, repetitions, progress=progress)
