@@ -135,3 +135,17 @@ def test_one_minus_accuracy_is_an_error_to_minimise():
     points = [{"seconds_per_trial": 1.0, "error": 0.05, "error_name": "1 - accuracy"},
               {"seconds_per_trial": 1.0, "error": 0.30, "error_name": "1 - accuracy"}]
     assert pareto_front(points) == [True, False]
+
+
+def test_record_results_adds_a_dated_section_above_the_older_ones(tmp_path):
+    import pandas as pd
+
+    from frictionfit.bench.report import frame_markdown, record_results
+
+    path = tmp_path / "results.md"
+    path.write_text("# Measured results\n\nIntro.\n\n## 2026-01-01\n\nOld.\n")
+    table = frame_markdown(pd.DataFrame({"features": ["physical"], "accuracy": [0.94051]}))
+    record_results(path, "frictionfit evaluate --all", table, today="2026-11-24")
+    text = path.read_text()
+    assert text.index("## 2026-11-24: `frictionfit evaluate --all`") < text.index("## 2026-01-01")
+    assert "| physical | 0.9405 |" in text and "cores" in text and text.startswith("# Measured")

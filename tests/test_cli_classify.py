@@ -195,3 +195,13 @@ def test_predict_refuses_recordings_unlike_the_training_ones(folders, tmp_path, 
     assert result.exit_code == 1
     assert "was trained on 'recordings' recordings (handcrafted features), not 'gesture'" \
         in result.output
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_any_work(folders, tmp_path):
+    nowhere = str(tmp_path / "nodir" / "x")
+    for args in (["features", "--dataset", f"recordings:{folders[1]}", "--out", nowhere + ".csv"],
+                 ["train", "--dataset", f"recordings:{folders[0]}", "--out", nowhere + ".skops"],
+                 ["evaluate", "--dataset", f"recordings:{folders[0]}", "--reliability",
+                  nowhere + ".png"]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2 and "does not exist" in result.output, result.output

@@ -216,3 +216,26 @@ def write_report(bench: Mapping, out: Path) -> dict[str, Path]:
     paths["markdown"].write_text(to_markdown(bench) + "\n")
     plot_speed_vs_error(bench, paths["plot"])
     return paths
+
+
+def frame_markdown(frame) -> str:
+    """A DataFrame as a markdown table (numbers to 4 significant digits)."""
+    return "\n".join(_table(list(map(str, frame.columns)),
+                            [list(row) for row in frame.itertuples(index=False)]))
+
+
+def record_results(path: Path, command: str, markdown: str, today: str | None = None) -> Path:
+    """Add a dated section (the command, the machine, ``markdown``) to a results file such as
+    ``docs/results.md``, above the sections already there (created when missing)."""
+    import datetime
+
+    path = Path(path)
+    machine = machine_info()
+    day = today or datetime.date.today().isoformat()
+    section = (f"## {day}: `{command}`\n\nMachine: {machine['cpu_count']} cores, "
+               f"{machine['platform']}, Python {machine['python']}.\n\n{markdown.strip()}\n\n")
+    text = path.read_text() if path.exists() else "# Measured results\n\n"
+    at = text.find("\n## ")
+    text = text.rstrip() + "\n\n" + section if at < 0 else text[:at + 1] + section + text[at + 1:]
+    path.write_text(text)
+    return path

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import warnings
+from pathlib import Path
 
 import typer
 
@@ -38,3 +40,16 @@ def load_recordings(spec: str, strict: bool = False) -> list:
         typer.echo(f"using {len(recordings)} recordings; {len(skipped)} skipped (named above; "
                    "--strict stops at the first)", err=True)
     return recordings
+
+
+def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = ()) -> None:
+    """Refuse an output path that cannot be written, before any work is done."""
+    if path is None:
+        return
+    if suffixes and path.suffix not in suffixes:
+        raise typer.BadParameter(f"{path}: write {' or '.join(suffixes)}", param_hint=option)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise typer.BadParameter(f"{path}: folder {folder} does not exist", param_hint=option)
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise typer.BadParameter(f"{path}: not writable", param_hint=option)

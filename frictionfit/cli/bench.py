@@ -28,6 +28,8 @@ def bench(
     seed: int = typer.Option(0, help="Seed of the simulated trials."),
     scheduler: str = typer.Option(None, help="Dask scheduler address for the distributed "
                                   "timing (default: a local 2-worker cluster)."),
+    results: Path = typer.Option(None, help="Also add the table, dated, to this results file "
+                                 "(e.g. docs/results.md)."),
 ) -> None:
     """Run the benchmark on simulated trials with known truth; write the JSON, table and plot."""
     choices = (*STAGES, "hard-cases", "scaling", "all")
@@ -35,7 +37,7 @@ def bench(
         typer.echo(f"error: unknown benchmark {what!r}; choose from {', '.join(choices)}",
                    err=True)
         raise typer.Exit(2)
-    from frictionfit.bench.report import merge, write_report
+    from frictionfit.bench.report import merge, record_results, write_report
 
     stages = [_run_stage(s, quick, seed) for s in STAGES if what in (s, "all")]
     parts = {}
@@ -54,6 +56,9 @@ def bench(
                + (f" --seed {seed}" if seed else "")
                + (f" --scheduler {scheduler}" if scheduler else ""))
     paths = write_report(merge(stages, command=command, **parts), out)
+    if results is not None:
+        record_results(results, command, paths["markdown"].read_text())
+        typer.echo(f"added the table to {results}")
     for stage in stages:
         if "error" in stage:
             typer.echo(f"stage {stage['stage']} failed: {stage['error']}", err=True)

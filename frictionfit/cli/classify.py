@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import check_writable
+
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
                "and why).")
@@ -54,6 +56,7 @@ def features(
 
     from frictionfit.features import make_features
 
+    check_writable(out, "--out", (".csv",))
     recordings = _load(dataset, strict)
     try:
         transformer = make_features(features)
@@ -90,6 +93,7 @@ def train(
     from frictionfit.errors import FrictionfitError
     from frictionfit.model_file import save_model
 
+    check_writable(out, "--out")
     recordings = _load(dataset, strict)
     try:
         y = labels_of(recordings)
@@ -152,6 +156,7 @@ def predict(
     from frictionfit.errors import ModelError
     from frictionfit.model_file import load_model
 
+    check_writable(out, "--out", (".csv",))
     try:
         saved = load_model(model)
     except ModelError as exc:
@@ -239,6 +244,8 @@ def evaluate(
     classifiers: str = typer.Option(None, help="With --all: classifiers, comma-separated."),
     protocols: str = typer.Option(None, help="With --all: protocols, comma-separated."),
     seed: int = typer.Option(0, help="Seed of the splits and classifiers."),
+    results: Path = typer.Option(None, help="Also add the scores, dated, to this results file "
+                                 "(e.g. docs/results.md)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
@@ -248,6 +255,9 @@ def evaluate(
     from frictionfit.classify import evaluate as run
     from frictionfit.errors import FrictionfitError
 
+    for path, option in ((out, "--out"), (confusion, "--confusion"),
+                         (reliability, "--reliability"), (predictions, "--predictions")):
+        check_writable(path, option)
     recordings = _load(dataset, strict)
     try:
         projection = projection_for(recordings, _projection(project))
@@ -285,6 +295,14 @@ def evaluate(
     if out is not None:
         table.to_csv(out, index=False)
         typer.echo(f"scores -> {out}")
+    if results is not None:
+        from frictionfit.bench.report import frame_markdown, record_results
+
+        record_results(results, f"frictionfit evaluate --dataset {dataset}"
+                       + (" --all" if all_ else f" --features {features} --classifier "
+                          f"{classifier} --protocol {protocol}"),
+                       frame_markdown(table))
+        typer.echo(f"added the scores to {results}")
     if confusion is not None and not all_:
         _plot_confusion(ev.confusion, confusion, f"{features} / {classifier} / {protocol}")
         typer.echo(f"confusion matrix -> {confusion}")

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import typer
+
+from frictionfit.cli._load import check_writable
 
 
 def fit(
@@ -63,7 +64,7 @@ def fit(
         raise typer.BadParameter(f"{fix}: write NAME=VALUE, e.g. tau=0.1",
                                  param_hint="--fix") from None
     priors = _priors(prior)
-    _check_out(out)
+    check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
     batches, problems, used = _trials(files, strict)
     if not batches:
@@ -168,17 +169,6 @@ def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[
                 batch.ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
                 batch.groups.append(f"{m.recording}/motion{m.index}")
     return batches, problems, used
-
-
-def _check_out(out: Path) -> None:
-    """Refuse an output path that cannot be written, before any fitting."""
-    if out.suffix not in (".csv", ".parquet"):
-        raise typer.BadParameter(f"{out}: write .csv or .parquet", param_hint="--out")
-    folder = out.parent if str(out.parent) else Path(".")
-    if not folder.is_dir():
-        raise typer.BadParameter(f"{out}: folder {folder} does not exist", param_hint="--out")
-    if not os.access(folder, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        raise typer.BadParameter(f"{out}: not writable", param_hint="--out")
 
 
 def _posterior(result, y, t, drive_input, method: str, chains: Path | None, scheduler: str | None):
