@@ -154,3 +154,31 @@ def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
     assert {"k_p16 [N/mm]", "k_p84 [N/mm]", "uq_method"} <= set(frame.columns)
     bad = runner.invoke(app, ["fit", str(tmp_path), "--uncertainty", "mcmc"])
     assert bad.exit_code == 2 and "choose none, laplace, emcee or auto" in bad.output
+
+
+def test_the_posterior_of_a_saturated_trial_uses_exactly_the_fits_samples(monkeypatch):
+    import frictionfit.uncertainty as uq
+    from frictionfit.errors import Status
+    from frictionfit.fit import FitResult
+    from frictionfit.simulation.trials import simulate_trials
+
+    ts = simulate_trials(MODEL, 2, seed=3)
+    y = ts.y.copy()
+    y[0] = np.minimum(y[0], np.nanpercentile(y[0], 60))  # a clipping amplifier
+    res = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model=MODEL)
+    assert Status(int(res.status[0])) is Status.SATURATED
+    seen = {}
+    real = uq.TrialData
+
+    def spy(t, y_, mask, *rest):
+        seen["mask"] = np.asarray(mask)
+        seen["direction"] = np.asarray(rest[2])
+        return real(t, y_, mask, *rest)
+
+    monkeypatch.setattr(uq, "TrialData", spy)
+    sample_posterior(res, y, ts.t, (ts.t_out, ts.t_back), method="laplace")
+    used = FitResult.sample_mask(y)
+    clipped = np.isfinite(y[0]) & ~used[0]
+    assert clipped.sum() >= 20  # the run at the clip is left out ...
+    np.testing.assert_array_equal(seen["mask"], used)  # ... by the posterior as by the fit
+    np.testing.assert_array_equal(seen["direction"], res.direction)

@@ -254,7 +254,7 @@ def fit_trials(
         raise FitError("tie needs groups: one group label per trial (e.g. the measurement id)")
     # Samples held at a clipping extreme are censored, not measured: left out (SATURATED).
     clipped = saturated_samples(y)
-    mask = np.isfinite(y) & ~clipped
+    mask = FitResult.sample_mask(y)
     y_clean = np.where(mask, y, 0.0)
     if drive == "events":
         t_out, t_back = drive_input

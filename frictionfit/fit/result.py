@@ -101,6 +101,15 @@ class FitResult:
         return np.asarray(member.predict(jnp.asarray(self.u[i]), jnp.asarray(t), drive_i,
                                          self.direction[i]))
 
+    @staticmethod
+    def sample_mask(y) -> np.ndarray:
+        """The samples a fit of ``y (n_trials, n_samples)`` uses: finite, and not in a run
+        at a clipping extreme (:func:`~frictionfit.fit._guess.saturated_samples`)."""
+        from frictionfit.fit._guess import saturated_samples
+
+        y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+        return np.isfinite(y) & ~saturated_samples(y)
+
     def member(self, i: int):
         """Trial ``i``'s :class:`~frictionfit.models.ContactModel`, with drive and priors."""
         from frictionfit.models import get_model

@@ -233,7 +233,7 @@ def sample_posterior(
                        f"{t.size} samples")
     t_out, t_back = (np.broadcast_to(np.asarray(a, dtype=np.float64), (n,)).copy()
                      for a in drive_input)
-    mask = np.isfinite(y)
+    mask = fit.sample_mask(y)  # exactly the samples the fit used (clipped runs left out)
     y0 = np.where(mask, y, 0.0)
     nan = {}
     out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
@@ -268,7 +268,8 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
                   pilot_steps=30) -> None:
     """Laplace for every trial of one model, then emcee where ``method`` asks for it."""
     u_hat = np.stack([fit.u[i] for i in rows])
-    direction = _directions(model, t, y, mask, t_out, t_back, u_hat)
+    direction = (np.asarray(fit.direction, dtype=np.float64)[rows] if fit.direction is not None
+                 else _directions(model, t, y, mask, t_out, t_back, u_hat))
     resid = np.asarray(residuals(model)(u_hat, t, y, mask, t_out, t_back, direction))
     sigma, rho = noise_estimate(resid, mask, model.n_params)
     if noise == "white":
