@@ -41,3 +41,28 @@ from frictionfit.recording import (
 )
 
 __version__ = "0.1.0"
+
+#: Entry points importable from ``frictionfit`` itself, loaded on first use so that
+#: ``import frictionfit`` (and ``frictionfit --help``) never imports JAX.
+_LAZY = {
+    "segment": "frictionfit.segmentation",
+    "fit_trials": "frictionfit.fit",
+    "fit_report": "frictionfit.fit",
+    "sample_posterior": "frictionfit.uncertainty",
+    "posterior_summary": "frictionfit.uncertainty",
+    "make_features": "frictionfit.features",
+    "make_pipeline": "frictionfit.classify",
+    "evaluate": "frictionfit.classify",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'frictionfit' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])

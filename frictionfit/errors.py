@@ -75,7 +75,6 @@ class Status(enum.IntEnum):
     NONFINITE = 2
     ILL_CONDITIONED = 3
     INSUFFICIENT_DATA = 4
-    NOT_CONVERGED = 5
     SATURATED = 6
 
     @property
@@ -99,10 +98,6 @@ _STATUS_MESSAGES = {
     ),
     Status.INSUFFICIENT_DATA: (
         "Too few finite samples to fit this model; the trial is mostly missing or NaN."
-    ),
-    Status.NOT_CONVERGED: (
-        "The sampler did not converge (chain shorter than 50 autocorrelation times); "
-        "run longer (`max_steps`) or use the Laplace path."
     ),
     Status.SATURATED: (
         "The channel is saturated (clipped) or stuck: a run of samples sits exactly at its "

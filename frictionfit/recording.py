@@ -201,12 +201,6 @@ class Recording:
                 f"no channel {name!r}; channels are {list(self.channel_names)}", path=self.name
             ) from None
 
-    def select(self, start_s: float, stop_s: float) -> Recording:
-        """The part with ``start_s <= t < stop_s`` (seconds), events included."""
-        keep = (self.t >= start_s) & (self.t < stop_s)
-        events = tuple(e for e in self.events if start_s <= e.t < stop_s)
-        return replace(self, t=self.t[keep], samples=self.samples[keep], events=events)
-
     @property
     def disqualified(self) -> tuple[Problem, ...]:
         """The problems that make this recording's numbers wrong (:data:`DISQUALIFYING`)."""

@@ -55,6 +55,18 @@ def test_report_and_frame_name_units_and_flags(stick_slip_fit):
     assert {"f_kin [N]", "f_kin_stderr [N]", "status", "bic"} <= set(frame.columns)
 
 
+def test_report_shows_starting_values_and_strong_correlations(stick_slip_fit):
+    _, res = stick_slip_fit
+    report = fit_report(res, 0)
+    assert f"(init = {res.init[0]['k']:.6g})" in report
+    pairs = {k: r for k, r in res.correl[0].items() if abs(r) >= 0.1}
+    assert "[[Correlations]]" in report and len(pairs) >= 1
+    (a, b), r = max(pairs.items(), key=lambda kv: abs(kv[1]))
+    assert f"C({a}, {b}) = {r:+.4f}" in report
+    assert all(-1.0 <= r <= 1.0 for r in res.correl[0].values())
+    assert repr(res).startswith(f"FitResult({res.n_trials} trials, models")
+
+
 def test_bad_shapes_raise_named_error():
     with pytest.raises(FitError, match="y has 5 samples per trial but t has 4"):
         fit_trials(np.zeros((2, 5)), np.arange(4) / 1e3, (0.0, 0.002))

@@ -34,3 +34,12 @@ def test_cli_help_does_not_import_jax():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+def test_entry_points_import_from_the_package_lazily():
+    code = ("import sys, frictionfit; jax_at_import = 'jax' in sys.modules;"
+            "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
+            "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True"]

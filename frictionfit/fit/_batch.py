@@ -279,10 +279,12 @@ def fit_trials(
         members = [get_model(n, drive=drive, stroke_mm=stroke_mm, priors=priors) for n in names]
     except ValueError as exc:
         raise FitError(str(exc)) from None
-    fits, previous = {}, None
+    fits, previous, inits = {}, None, {}
     for member in members:
         start_u = np.array(u0 if (u0 is not None and model != "auto") else initial_guess(
             member, t, y, *guess_times, direction), dtype=np.float64)
+        inits[member.name] = [{k: float(v) for k, v in row.items()}
+                              for row in _rows_of(member.physical(start_u))]
         fit = _fit_member(member, mask, data, start_u, fix, opts,
                           _warm_start(member, start_u, previous))
         if tie:
@@ -322,11 +324,20 @@ def fit_trials(
         chi2=pick["chi2"], redchi=pick["redchi"], aic=pick["aic"], bic=pick["bic"],
         r2=r2, cond=pick["cond"], n_steps=pick["steps"],
         u=[r["u"][i] for i, r in enumerate(rows)],
+        init=[inits[name][i] for i, name in enumerate(chosen)],
+        correl=[r["correl"][i] for i, r in enumerate(rows)],
         bic_table=bic if model == "auto" else None, wall_s=time.perf_counter() - start,
         solver=solver, n_starts=opts["n_starts"], direction=direction,
         drive_input=drive_input, drive=drive, stroke_mm=stroke_mm,
         priors=dict(priors) if priors is not None else None,
     )
+
+
+def _rows_of(columns: dict) -> list[dict]:
+    """``{name: array (n,)}`` -> one ``{name: value}`` per trial."""
+    names = list(columns)
+    return [dict(zip(names, vals, strict=True))
+            for vals in zip(*(np.asarray(columns[n]) for n in names), strict=True)]
 
 
 def _warm_start(member, start_u, previous):

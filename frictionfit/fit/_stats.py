@@ -186,9 +186,14 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     sd = np.sqrt(np.where(var >= 0, var, np.nan))
     se = np.stack([np.abs(slope[j]) * sd[:, pos[j]] if j in pos else np.zeros(n_trials)
                    for j in range(model.n_params)], axis=1)
-    values, stderrs, flags = [], [], []
+    values, stderrs, flags, correls = [], [], [], []
+    free_names = [names[j] for j in free]
     for i in range(u.shape[0]):
         values.append({nm: float(phys[j][i]) for j, nm in enumerate(names)})
+        # the physical maps are increasing: correlations carry over from the fit's coordinates
+        correls.append({(a, b): float(corr[i, ja, jb]) if ok[i] else np.nan
+                        for ja, a in enumerate(free_names)
+                        for jb, b in enumerate(free_names) if jb > ja})
         if not ok[i]:  # non-finite Jacobian: statistics undefined; flag, don't raise
             stderrs.append(dict.fromkeys(names, np.nan))
             flags.append(dict.fromkeys(names, "singular"))
@@ -197,7 +202,7 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
         flags.append(_flags(model, values[i], stderrs[i], scale[i], corr[i], free,
                             set(fixed_names)))
     return dict(values=values, stderr=stderrs, flags=flags, chi2=chi2, redchi=redchi,
-                aic=aic, bic=bic, cond=cond)
+                aic=aic, bic=bic, cond=cond, correl=correls)
 
 
 def choose(bic: pd.DataFrame) -> list[str]:

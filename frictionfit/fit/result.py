@@ -41,6 +41,10 @@ class FitResult:
     direction, drive_input, drive, stroke_mm, priors
         What :meth:`predict` needs to recompute a trial's fitted curve, and the
         ``priors=`` the fit was given (``None``: the parameters' defaults).
+    init : list of dict, optional
+        Per trial, the starting point in physical units (the data-driven guess).
+    correl : list of dict, optional
+        Per trial, ``(name_a, name_b) -> correlation`` of the free parameters' estimates.
     """
 
     model: list[str]
@@ -65,6 +69,16 @@ class FitResult:
     drive: str = "events"
     stroke_mm: float = 1.0
     priors: dict | None = None
+    init: list[dict] | None = field(default=None, repr=False)
+    correl: list[dict] | None = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        from collections import Counter
+
+        models = dict(Counter(self.model))
+        status = {Status(int(k)).name.lower(): n for k, n in Counter(self.status.tolist()).items()}
+        return (f"FitResult({self.n_trials} trials, models {models}, status {status}, "
+                f"solver {self.solver!r}, {self.wall_s:.2f} s)")
 
     @property
     def n_trials(self) -> int:
@@ -117,13 +131,10 @@ class FitResult:
         return get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm,
                          priors=self.priors)
 
-    def identifiable(self, i: int) -> dict[str, float]:
-        """The parameters of trial ``i`` reported with confidence (no flag), physical units."""
-        return {n: v for n, v in self.values[i].items() if n not in self.flags[i]}
 
-
-def fit_report(result: FitResult, i: int = 0) -> str:
-    """An lmfit-style report of trial ``i``: statistics, values +/- stderr (%), flags."""
+def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
+    """An lmfit-style report of trial ``i``: statistics, values +/- stderr (%) with the
+    starting value, flags, and the correlations above ``min_correl`` in size."""
     lines = [
         f"[[Model]]\n    {result.model[i]}",
         "[[Fit Statistics]]",
@@ -145,7 +156,14 @@ def fit_report(result: FitResult, i: int = 0) -> str:
         flag = result.flags[i].get(name)
         warn = (f"  ({flag})" if flag in ("fixed", "tied")
                 else f"  <-- not identifiable: {flag}" if flag else "")
-        lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{warn}")
+        init = f" (init = {result.init[i][name]:.6g})" if result.init is not None else ""
+        lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{init}{warn}")
+    if result.correl is not None:
+        pairs = sorted(((a, b, r) for (a, b), r in result.correl[i].items()
+                        if np.isfinite(r) and abs(r) >= min_correl), key=lambda x: -abs(x[2]))
+        if pairs:
+            lines.append(f"[[Correlations]] (unreported correlations are < {min_correl:.3f})")
+            lines += [f"    C({a}, {b}) = {r:+.4f}" for a, b, r in pairs]
     priors = result.member(i).prior_table
     if priors:
         lines.append("[[Priors]] (Normal on the log of loglogit parameters; the fit is MAP)")
