@@ -27,19 +27,23 @@ def test_import_layers_contract():
     assert out.returncode == 0, out.stdout + out.stderr
 
 
-def test_cli_help_does_not_import_jax():
-    code = ("import sys; from typer.testing import CliRunner; from frictionfit.cli import app;"
-            "r = CliRunner().invoke(app, ['--help']); assert r.exit_code == 0, r.output;"
-            "assert 'info' in r.output; print('jax' in sys.modules)")
+def _python(code: str) -> str:
+    """Run ``code`` in a fresh interpreter; its standard output."""
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "False"
+    return out.stdout
+
+
+def test_cli_help_does_not_import_jax():
+    assert _python(
+        "import sys; from typer.testing import CliRunner; from frictionfit.cli import app;"
+        "r = CliRunner().invoke(app, ['--help']); assert r.exit_code == 0, r.output;"
+        "assert 'info' in r.output; print('jax' in sys.modules)").strip() == "False"
 
 
 def test_entry_points_import_from_the_package_lazily():
-    code = ("import sys, frictionfit; jax_at_import = 'jax' in sys.modules;"
-            "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
-            "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["False", "True"]
+    assert _python(
+        "import sys, frictionfit; jax_at_import = 'jax' in sys.modules;"
+        "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
+        "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))"
+    ).split() == ["False", "True"]
