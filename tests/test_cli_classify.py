@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 import pytest
 from typer.testing import CliRunner
@@ -48,7 +49,7 @@ def test_train_then_predict_round_trip(folders, tmp_path):
     assert result.exit_code == 0, result.output
     table = pd.read_csv(out)
     assert list(table.columns) == ["recording", "predicted", "probability", "true",
-                                   "top1", "p1", "top2", "p2", "top3", "p3"]
+                                   "top1", "p1", "top2", "p2", "top3", "p3", "problems"]
     assert sorted(table["recording"]) == sorted(f"s3_{lab}_01" for lab in LABELS)
     assert set(table["predicted"]) <= set(LABELS)
     assert table["probability"].between(0, 1).all()
@@ -75,7 +76,7 @@ def test_features_table_has_recording_label_groups_then_features(folders, tmp_pa
     assert result.exit_code == 0, result.output
     table = pd.read_csv(out)
     assert list(table.columns[:3]) == ["recording", "label", "session"]
-    assert table.shape == (3, 3 + 2 + 80)  # + layers, material; 80 FFT bins
+    assert table.shape == (3, 3 + 3 + 80)  # + layers, material, problems; 80 FFT bins
 
 
 def test_evaluate_prints_accuracy_last_and_saves(folders, tmp_path):
@@ -205,3 +206,26 @@ def test_outputs_that_cannot_be_written_are_refused_before_any_work(folders, tmp
                   nowhere + ".png"]):
         result = runner.invoke(app, args)
         assert result.exit_code == 2 and "does not exist" in result.output, result.output
+
+
+def test_problems_found_on_reading_reach_the_feature_table(folders, tmp_path):
+    from frictionfit.recording import read_recording
+
+    src = sorted(folders[1].glob("*.csv"))
+    for path in src:
+        rec = read_recording(path, on_error="flag")
+        samples = rec.samples.copy()
+        if path == src[0]:
+            samples[3000:3040, 2] = np.nan  # a NaN burst in index_x
+        write_recording(type(rec)(rec.t, samples, rec.sample_rate_hz, rec.channels,
+                                  events=rec.events, metadata=rec.metadata, name=rec.name),
+                        tmp_path / rec.name)
+    out = tmp_path.parent / f"{tmp_path.name}-f.csv"
+    result = runner.invoke(app, ["features", "--dataset", f"recordings:{tmp_path}",
+                                 "--features", "fftbins", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(out).set_index("recording")
+    flagged = int(table["problems"].fillna("").str.contains(r"\[nonfinite\]").sum())
+    assert f"problems found on reading (kept, masked where they are): nonfinite in {flagged} " \
+           "recording(s)" in result.output
+    assert "channel 'index_x': 40 NaN/inf sample(s)" in table.loc[src[0].stem, "problems"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import typer
@@ -39,7 +40,17 @@ def load_recordings(spec: str, strict: bool = False) -> list:
     if skipped:
         typer.echo(f"using {len(recordings)} recordings; {len(skipped)} skipped (named above; "
                    "--strict stops at the first)", err=True)
+    kinds = Counter(p.kind for r in recordings for p in {q.kind: q for q in r.problems}.values())
+    if kinds:
+        typer.echo("problems found on reading (kept, masked where they are): "
+                   + ", ".join(f"{k} in {n} recording(s)" for k, n in sorted(kinds.items()))
+                   + f"; `frictionfit info {spec}` lists them", err=True)
     return recordings
+
+
+def problems_of(rec) -> str:
+    """A recording's problems in one cell: ``[kind] words; ...`` (empty when clean)."""
+    return "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
 
 
 def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = ()) -> None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import check_writable
+from frictionfit.cli._load import check_writable, problems_of
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
@@ -63,8 +63,8 @@ def features(
         x = transformer.fit_transform(recordings)
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
-    meta = pd.DataFrame([{"recording": r.name, "label": r.label, **_groups(r)}
-                         for r in recordings])
+    meta = pd.DataFrame([{"recording": r.name, "label": r.label, **_groups(r),
+                          "problems": problems_of(r)} for r in recordings])
     table = pd.concat([meta, pd.DataFrame(x, columns=transformer.get_feature_names_out())],
                       axis=1)
     table.to_csv(out, index=False)
@@ -194,6 +194,7 @@ def predict(
                        err=True)
     if top is not None:
         table = pd.concat([table, top], axis=1)
+    table["problems"] = [problems_of(r) for r in recordings]
     table.to_csv(out, index=False)
     typer.echo(f"{len(table)} predictions -> {out}")
     if "true" in table:
