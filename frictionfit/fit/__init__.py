@@ -13,5 +13,7 @@ from frictionfit.fit._guess import initial_guess as initial_guess
 from frictionfit.fit.plot import plot_fit as plot_fit
 from frictionfit.fit.result import FitResult as FitResult
 from frictionfit.fit.result import fit_report as fit_report
+from frictionfit.fit.solver import BatchedLevenbergMarquardt as BatchedLevenbergMarquardt
 
-__all__ = ["SOLVERS", "FitResult", "fit_report", "fit_trials", "initial_guess", "plot_fit"]
+__all__ = ["SOLVERS", "BatchedLevenbergMarquardt", "FitResult", "fit_report", "fit_trials",
+           "initial_guess", "plot_fit"]

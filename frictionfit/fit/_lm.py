@@ -92,6 +92,45 @@ def _damped_step(jtj, grad, scale, lam):
     return sol.value
 
 
+def lm_iteration(pool: _Pool, evaluated, cfg: LMConfig) -> _Pool:
+    """One LM iteration of one slot, given ``evaluated = (cost, J^T J, J^T r)`` at
+    ``pool.cand``: accept or reject the candidate, update the damping and the scaling,
+    test convergence, and propose the next candidate."""
+    active = pool.code == RUNNING
+    cost_c, jtj_c, grad_c = evaluated
+    finite = jnp.isfinite(cost_c) & jnp.all(jnp.isfinite(grad_c)) & jnp.all(jnp.isfinite(jtj_c))
+    fresh = jnp.isinf(pool.cost)
+    accept = active & finite & (cost_c <= pool.cost)
+    decrease = jnp.where(fresh, jnp.inf, pool.cost - cost_c)
+    # Gain ratio: actual over predicted decrease of the step (its linear model).
+    d = pool.cand - pool.u
+    predicted = -(d @ pool.grad + 0.5 * d @ (pool.jtj @ d))
+    gain = jnp.where(predicted > 0, decrease / jnp.maximum(predicted, 1e-300), 0.0)
+    small_move = jnp.all(jnp.abs(pool.cand - pool.u) <= cfg.xtol * (1.0 + jnp.abs(pool.u)))
+    u = jnp.where(accept, pool.cand, pool.u)
+    cost = jnp.where(accept, cost_c, pool.cost)
+    jtj = jnp.where(accept, jtj_c, pool.jtj)
+    grad = jnp.where(accept, grad_c, pool.grad)
+    diag = jnp.diagonal(jtj)
+    scale = jnp.where(accept, jnp.maximum(pool.scale, diag), pool.scale)
+    shrink = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
+    lam = jnp.where(accept, jnp.maximum(pool.lam * shrink, 1e-12), pool.lam * REJECT_GROWTH)
+    lam = jnp.where(accept & fresh, cfg.lambda0, lam)
+    # MINPACK gtol: largest cosine between the residual and a Jacobian column.
+    cosine = jnp.max(jnp.abs(grad) / jnp.sqrt(jnp.maximum(diag * 2.0 * cost, 1e-300)))
+    converged = active & (
+        (accept & ~fresh & (((decrease <= cfg.ftol * cost) & (pool.lam <= 1.0)) | small_move))
+        | (jnp.isfinite(cost) & (cosine <= cfg.gtol))
+        | (lam > LAMBDA_MAX)
+    )
+    steps = pool.steps + active
+    code = jnp.where(active & fresh & ~finite, NONFINITE, pool.code)
+    code = jnp.where((code == RUNNING) & converged, CONVERGED, code)
+    code = jnp.where((code == RUNNING) & (steps >= cfg.max_steps), MAX_STEPS, code)
+    cand = u + _damped_step(jtj, grad, jnp.maximum(scale, 1e-300), lam)
+    return _Pool(u, cand, cost, jtj, grad, scale, lam, steps, code)
+
+
 @lru_cache(maxsize=32)
 def _segment_fn(normal: Callable, cfg: LMConfig):
     """Jitted: advance a pool by up to ``cfg.segment`` LM iterations.
@@ -99,39 +138,7 @@ def _segment_fn(normal: Callable, cfg: LMConfig):
     ``normal(u, data) -> (cost, J^T J, J^T r)`` for one trial (``data`` a pytree).
     """
     def iteration(pool: _Pool, data) -> _Pool:  # one slot; vmapped below
-        active = pool.code == RUNNING
-        cost_c, jtj_c, grad_c = normal(pool.cand, data)
-        finite = jnp.isfinite(cost_c) & jnp.all(jnp.isfinite(grad_c)) & jnp.all(jnp.isfinite(jtj_c))
-        fresh = jnp.isinf(pool.cost)
-        accept = active & finite & (cost_c <= pool.cost)
-        decrease = jnp.where(fresh, jnp.inf, pool.cost - cost_c)
-        # Gain ratio: actual over predicted decrease of the step (its linear model).
-        d = pool.cand - pool.u
-        predicted = -(d @ pool.grad + 0.5 * d @ (pool.jtj @ d))
-        gain = jnp.where(predicted > 0, decrease / jnp.maximum(predicted, 1e-300), 0.0)
-        small_move = jnp.all(jnp.abs(pool.cand - pool.u) <= cfg.xtol * (1.0 + jnp.abs(pool.u)))
-        u = jnp.where(accept, pool.cand, pool.u)
-        cost = jnp.where(accept, cost_c, pool.cost)
-        jtj = jnp.where(accept, jtj_c, pool.jtj)
-        grad = jnp.where(accept, grad_c, pool.grad)
-        diag = jnp.diagonal(jtj)
-        scale = jnp.where(accept, jnp.maximum(pool.scale, diag), pool.scale)
-        shrink = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
-        lam = jnp.where(accept, jnp.maximum(pool.lam * shrink, 1e-12), pool.lam * REJECT_GROWTH)
-        lam = jnp.where(accept & fresh, cfg.lambda0, lam)
-        # MINPACK gtol: largest cosine between the residual and a Jacobian column.
-        cosine = jnp.max(jnp.abs(grad) / jnp.sqrt(jnp.maximum(diag * 2.0 * cost, 1e-300)))
-        converged = active & (
-            (accept & ~fresh & (((decrease <= cfg.ftol * cost) & (pool.lam <= 1.0)) | small_move))
-            | (jnp.isfinite(cost) & (cosine <= cfg.gtol))
-            | (lam > LAMBDA_MAX)
-        )
-        steps = pool.steps + active
-        code = jnp.where(active & fresh & ~finite, NONFINITE, pool.code)
-        code = jnp.where((code == RUNNING) & converged, CONVERGED, code)
-        code = jnp.where((code == RUNNING) & (steps >= cfg.max_steps), MAX_STEPS, code)
-        cand = u + _damped_step(jtj, grad, jnp.maximum(scale, 1e-300), lam)
-        return _Pool(u, cand, cost, jtj, grad, scale, lam, steps, code)
+        return lm_iteration(pool, normal(pool.cand, data), cfg)
 
     batched = jax.vmap(iteration)
 
