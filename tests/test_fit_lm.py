@@ -125,6 +125,11 @@ def test_fix_and_tie(four):
     assert ramps[0] == pytest.approx(ramps[1], rel=1e-12)
     assert ramps[2] == pytest.approx(ramps[3], rel=1e-12)
     assert tied.flags[0]["ramp"] == "tied" and np.isfinite(tied.stderr[0]["ramp"])
+    # what the free fit could not identify stays flagged once the tied parameter is held
+    free = _fit(ts)
+    for i in range(4):
+        lost = {n for n, f in free.flags[i].items() if n != "ramp"} - set(tied.flags[i])
+        assert not lost, (i, lost, free.flags[i], tied.flags[i])
 
 
 def test_multi_start_is_seeded_and_never_worse(four):

@@ -294,6 +294,10 @@ def fit_trials(
             for i in range(n_trials):
                 for name in means:
                     refit["stderr"][i][name] = float(errs[name][i])
+                # Holding a tied parameter at its group mean hides the trade-offs it had:
+                # what the free fit could not identify stays flagged.
+                for name, flag in fit["flags"][i].items():
+                    refit["flags"][i].setdefault(name, flag)
             fit = refit
         fits[member.name] = fit
         previous = (member, fit["u"])
