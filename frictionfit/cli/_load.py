@@ -9,6 +9,9 @@ from pathlib import Path
 
 import typer
 
+STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
+               "and why).")
+
 
 def fail(message: str, code: int = 1):
     """Print ``error: message`` on stderr and leave with ``code``."""
@@ -40,7 +43,7 @@ def load_recordings(spec: str, strict: bool = False) -> list:
     if skipped:
         typer.echo(f"using {len(recordings)} recordings; {len(skipped)} skipped (named above; "
                    "--strict stops at the first)", err=True)
-    kinds = Counter(p.kind for r in recordings for p in {q.kind: q for q in r.problems}.values())
+    kinds = Counter(kind for r in recordings for kind in {p.kind for p in r.problems})
     if kinds:
         typer.echo("problems found on reading (kept, masked where they are): "
                    + ", ".join(f"{k} in {n} recording(s)" for k, n in sorted(kinds.items()))

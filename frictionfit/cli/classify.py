@@ -6,11 +6,9 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import check_writable, problems_of
+from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
-STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
-               "and why).")
 FEATURES_HELP = ("Feature set(s): physical, handcrafted, fftbins, spectral, raw, gesture, touch, "
                  "shortcut; a comma list concatenates them.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from frictionfit.cli._load import check_writable
+from frictionfit.cli._load import STRICT_HELP, check_writable
 
 
 def fit(
@@ -39,8 +39,7 @@ def fit(
     scheduler: str = typer.Option(None, help="Dask scheduler address (e.g. tcp://host:8786): "
                                   "partition the trials across its workers; results equal the "
                                   "local ones up to rounding."),
-    strict: bool = typer.Option(False, help="Stop at the first recording that cannot be used "
-                                "(default: skip it, naming it and why)."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Fit every non-preparatory motion x channel; one row per trial with status and stderr.
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import STRICT_HELP
+
 
 def _dataset(spec: str, strict: bool) -> None:
     from collections import Counter
@@ -13,12 +15,11 @@ def _dataset(spec: str, strict: bool) -> None:
     from frictionfit.cli._load import load_recordings
 
     recs = load_recordings(spec if not Path(spec).is_dir() else f"recordings:{spec}", strict)
-    path = spec
     labels = Counter(str(r.label) for r in recs)
     sessions = sorted({r.metadata.get("session") for r in recs}, key=str)
     problems = Counter(p.kind for r in recs for p in r.problems)
     flagged = [r for r in recs if r.problems]
-    typer.echo(f"{path}: {len(recs)} recordings, {len(labels)} labels, "
+    typer.echo(f"{spec}: {len(recs)} recordings, {len(labels)} labels, "
                f"{len(sessions)} session(s), {len(flagged)} with problems")
     typer.echo(f"channels: {', '.join(f'{c.name} [{c.unit}]' for c in recs[0].channels)}")
     per = Counter((str(r.label), r.metadata.get("session")) for r in recs)
@@ -72,8 +73,7 @@ def _fault(f) -> str:
 def info(
     path: str = typer.Argument(..., help="A recording (<name>.csv / .json / stem), a folder of "
                                "them, or KIND:PATH (e.g. fabricslide:DIR)."),
-    strict: bool = typer.Option(False, help="Stop at the first recording that cannot be used "
-                                "(default: skip it, naming it and why)."),
+    strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Summarise a recording (channels, events, metadata, problems) or a dataset
     (counts per label and session, problems found, recordings skipped)."""
