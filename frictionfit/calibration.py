@@ -39,6 +39,7 @@ from frictionfit.recording import Recording
 __all__ = [
     "CalibratedPipeline",
     "CalibrationWarning",
+    "accuracy_at_coverage",
     "coverage_curve",
     "expected_calibration_error",
     "feature_draws",
