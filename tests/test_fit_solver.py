@@ -99,3 +99,19 @@ def test_nist_strd_four_digits_or_an_honest_failure(shared, name, start):
     cost = 0.5 * float(np.sum(np.asarray(fn(sol.value, (y, x))) ** 2))
     assert (sol.result != optx.RESULTS.successful
             or abs(cost - 0.5 * np.sum(ref.fun**2)) <= 1e-6 * cost), (name, start, cost)
+
+
+def test_fit_trials_takes_the_solver_object():
+    from frictionfit.errors import FitError
+    from frictionfit.fit import fit_trials
+
+    ts = simulate_trials("elastic_plastic", 4, seed=2)
+    args = (ts.y, ts.t, (ts.t_out, ts.t_back))
+    by_name = fit_trials(*args, model="elastic_plastic", solver="lm")
+    by_object = fit_trials(*args, model="elastic_plastic", solver=BatchedLevenbergMarquardt())
+    np.testing.assert_array_equal(np.stack(by_name.u), np.stack(by_object.u))
+    loose = fit_trials(*args, model="elastic_plastic",
+                       solver=BatchedLevenbergMarquardt(ftol=1e-2, rtol=1e-2))
+    assert loose.n_steps.sum() < by_name.n_steps.sum()
+    with pytest.raises(FitError, match="or a BatchedLevenbergMarquardt"):
+        fit_trials(*args, model="elastic_plastic", solver="newton")

@@ -24,6 +24,7 @@ from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
 from frictionfit.fit._problem import jacobian_fn, noise_scale, normal_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult
+from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import FAMILY, PARAMS, get_model
 
 __all__ = ["SOLVERS", "fit_trials"]
@@ -54,7 +55,8 @@ def _solve(model, free, starts, data, opts):
     data_all = jax.tree_util.tree_map(lambda a: np.concatenate([a] * n_starts), data)
     cols = list(free)
     if opts["solver"] == "lm":
-        cfg = LMConfig(ftol=opts["ftol"], xtol=opts["rtol"], max_steps=opts["max_steps"])
+        cfg = LMConfig(ftol=opts["ftol"], xtol=opts["rtol"], gtol=opts["gtol"],
+                       lambda0=opts["lambda0"], max_steps=opts["max_steps"])
         # a bar on a terminal only, for batches long enough to wait for
         with tqdm(total=len(u_all), desc=f"fitting {model.name}", unit="trial", leave=False,
                   disable=None if len(u_all) >= PROGRESS_MIN_TRIALS else True) as bar:
@@ -140,7 +142,7 @@ def fit_trials(
     model: str = "auto",
     direction=None,
     drive: str = "events",
-    solver: str = "lm",
+    solver: str | BatchedLevenbergMarquardt = "lm",
     max_steps: int = 100,
     steps_per_round: int = 40,
     chunk_size: int = 32,
@@ -174,10 +176,13 @@ def fit_trials(
         smallest whose BIC is not beaten by more than ``BIC_TIE``.
     direction : array (n_trials,), optional
         +1/-1 per trial; estimated from the out stroke when omitted.
-    solver : {"lm", "optx-lm", "dogleg", "gauss-newton"}
+    solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or BatchedLevenbergMarquardt
         ``"lm"``: frictionfit's batched Levenberg-Marquardt (lineax Cholesky solves,
         per-trial damping and Marquardt scaling, slot refilling; the fastest);
-        the others are the optimistix solvers, vmapped in rounds.
+        the others are the optimistix solvers, vmapped in rounds. A
+        :class:`~frictionfit.fit.BatchedLevenbergMarquardt` object runs ``"lm"`` with its
+        own tolerances (``rtol``, ``atol``, ``ftol``, ``lambda0``; ``rtol``/``ftol`` here
+        are then ignored).
     max_steps, steps_per_round, chunk_size : int
         Step budget per trial; steps per round (optimistix solvers); trials per
         vmapped chunk (the LM's pool size). Pools of 32 were the fastest of 16-256
@@ -239,8 +244,12 @@ def fit_trials(
     t = np.asarray(t, dtype=np.float64)
     if y.shape[1] != t.size:
         raise FitError(f"y has {y.shape[1]} samples per trial but t has {t.size}")
+    lm = BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol)
+    if isinstance(solver, BatchedLevenbergMarquardt):
+        lm, solver = solver, "lm"
     if solver not in SOLVERS:
-        raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS}")
+        raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS} or a "
+                       "BatchedLevenbergMarquardt")
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
     if t.size > 2 and not np.allclose(np.diff(t), dt, rtol=1e-6, atol=1e-12):
         raise FitError("t must be uniformly sampled (re-grid missing samples as NaN)")
@@ -268,7 +277,8 @@ def fit_trials(
         direction = direction_of(t, y, *guess_times)
     direction = np.asarray(direction, dtype=np.float64)
     data = (y_clean, mask, drive_input, direction, np.full(n_trials, t[0]), np.full(n_trials, dt))
-    opts = dict(solver=solver, rtol=rtol, atol=atol, ftol=ftol, max_steps=max_steps,
+    opts = dict(solver=solver, rtol=lm.rtol, atol=atol, ftol=lm.ftol, gtol=lm.atol,
+                lambda0=lm.lambda0, max_steps=max_steps,
                 steps_per_round=steps_per_round, chunk_size=chunk_size,
                 n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
                 saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm,
