@@ -46,6 +46,9 @@ X = feats.fit_transform(recs)
 cols = [c.removeprefix("index_x:").removeprefix("fit_").split(" ")[0]
         for c in feats.get_feature_names_out()]
 fits = pd.DataFrame(X, columns=cols)
+for name in ("k", "f_kin", "f_static_excess", "tau", "drag"):  # log10 features -> physical units
+    fits[f"{name}_stderr"] = fits[f"{name}_stderr"] * np.log(10) * 10 ** fits[name]
+    fits[name] = 10 ** fits[name]
 fits["label"] = [r.metadata["label"] for r in recs]
 fits["material"] = [r.metadata["material"] for r in recs]
 fits["layers"] = [r.metadata["layers"] for r in recs]
@@ -60,8 +63,9 @@ fits[["label", "session", "k", "k_stderr", "f_kin", "f_kin_stderr", "tau", "tau_
 
 # %% [markdown]
 # ## Fitted against the simulator's truth
-# The simulator uses a richer law (two Maxwell branches, damping, a sliding drag) than the
-# fitted `relaxation` member, so some bias is expected. The truth per motion and channel is
+# Each measurement is fitted whole (one rig, sensor and contact law per recording). The
+# simulator's law also has viscous damping and per-movement timing jitter, which the fitted
+# `relaxation2` law does not, so some bias is expected. The truth per motion and channel is
 # stored in each recording; we compare with its median over the fitted motions.
 
 # %%

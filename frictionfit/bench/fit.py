@@ -173,12 +173,19 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     ``quick=True`` fits 64 ``elastic_plastic`` trials in pools of 32 (a batch big
     enough for batching to count: with 4 trials in a pool of 4 the comparison with
     scipy-jax measured per-call overhead, 1.1x) and 4 per peer, without the grid;
-    under a minute on this machine. Timings are medians of interleaved
+    under a minute on this machine. ``summary["measurements"]``: truth recovery and
+    speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 35
+    measurements, 8 with ``quick``). Timings are medians of interleaved
     repetitions; ``compile_s`` is the first call of ours minus a steady one.
     """
+    from frictionfit.bench.measurement import recovery
+
     if quick:
-        return measure("elastic_plastic", 64, 4, 32, 1, grid=False, seed=seed)
-    return measure(DEFAULT_MODEL, 256, 8, 32, 2, grid=True, seed=seed)
+        out = measure("elastic_plastic", 64, 4, 32, 1, grid=False, seed=seed)
+    else:
+        out = measure(DEFAULT_MODEL, 256, 8, 32, 2, grid=True, seed=seed)
+    out["summary"]["measurements"] = recovery(8 if quick else 35, seed=seed)
+    return out
 
 
 def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,

@@ -53,53 +53,53 @@ def demo(
     data: Path = typer.Option(Path("data"), help="Folder of sample recordings."),
     out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
     channel: str = typer.Option("index_x", help="Channel to fit."),
-    model: str = typer.Option("relaxation", help="Model of the family to fit, or 'auto'."),
+    model: str = typer.Option("relaxation2", help="Contact law of the whole-measurement fit: "
+                              "relaxation, relaxation2 or rich."),
     classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
                                   "and classify the sample data."),
     fitted_features: bool = typer.Option(False, help="Classify with fitted model parameters "
                                          "too (about 30 s more), not only measured quantities."),
 ) -> None:
-    """Segment the sample measurements, fit every motion, compare with the simulator's truth,
+    """Segment the sample measurements, fit each one whole, compare with the simulator's truth,
     and classify them."""
     import numpy as np
 
-    from frictionfit.fit import fit_report, fit_trials
+    from frictionfit.fit import fit_report
+    from frictionfit.fit.measurement import fit_measurements, measurement_data
+    from frictionfit.models import MeasurementModel
     from frictionfit.segmentation import segment
 
     out.mkdir(parents=True, exist_ok=True)
     recs = _sample_recordings(data, out)
     typer.echo(f"read {len(recs)} recordings: {', '.join(r.name for r in recs)}")
-    rows, ids, truths, worst = [], [], [], 0.0
+    n_motions, worst = 0, 0.0
     for rec in recs:
-        j = rec.channel_names.index(channel)
         for m in segment(rec):
-            rows.append(m.samples[:, j])
-            ids.append(f"{rec.name}/motion{m.index}")
+            n_motions += 1
             tm = rec.truth["motions"][m.index] if rec.truth else None
-            truths.append(tm["channels"][channel] if tm else {})
             if tm:
                 found = [m.t0 + p.start_s for p in m.phases[::2]] + [m.t0 + m.phases[0].stop_s,
                                                                      m.t0 + m.phases[2].stop_s]
                 true = [tm["move_out"][0], tm["move_back"][0], tm["move_out"][1],
                         tm["move_back"][1]]
                 worst = max(worst, float(np.max(np.abs(np.subtract(found, true)))))
-    typer.echo(f"segmented {len(rows)} motions (the preparatory one dropped); largest phase "
+    typer.echo(f"segmented {n_motions} motions (the preparatory one dropped); largest phase "
                f"boundary error against the simulator's motor: {worst * 1e3:.1f} ms")
-    m0 = segment(recs[0])[0]
-    result = fit_trials(np.stack(rows), m0.t, (m0.t_out, m0.t_back), model=model)
-    result.to_frame(ids).to_csv(out / "fits.csv", index=False)
+    items = [measurement_data(rec, channel) for rec in recs]
+    result = fit_measurements(items, model=MeasurementModel(model), progress=False)
+    result.to_frame([f"{d.name}/{d.channel}" for d in items]).to_csv(out / "fits.csv",
+                                                                      index=False)
     typer.echo("\n" + fit_report(result, 0))
-    typer.echo(f"\ntruth vs fit ({channel}, median over motions; the simulator adds effects the "
-               "model lacks: motor profile, drag, history from the previous stroke)")
+    typer.echo(f"\ntruth/fit ({channel}; each recording fitted whole; truth: median over the "
+               "fitted motions; the simulator adds damping and per-movement timing jitter)")
     names = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
     typer.echo(f"{'recording':22s} " + " ".join(f"{n:>17s}" for n in names))
-    for rec in recs:
-        sel = [i for i, name in enumerate(ids) if name.startswith(rec.name + "/")]
+    for rec, values in zip(recs, result.values, strict=True):
         cells = []
         for n in names:
-            true = np.median([truths[i].get(n, np.nan) for i in sel])
-            fit = np.median([result.values[i][n] for i in sel]) if n in result.values[0] else np.nan
-            cells.append(f"{true:8.3g}/{fit:<8.3g}")
+            true = np.median([tm["channels"][channel][n] for tm in rec.truth["motions"][1:]]
+                             ) if rec.truth else np.nan
+            cells.append(f"{true:8.3g}/{values[n]:<8.3g}")
         typer.echo(f"{rec.name:22s} " + " ".join(cells))
     typer.echo(f"\nall fits: {out / 'fits.csv'}")
     if classify:

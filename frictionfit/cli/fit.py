@@ -40,6 +40,13 @@ def fit(
                                   "partition the trials across its workers; results equal the "
                                   "local ones up to rounding."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
+    whole: bool = typer.Option(False, help="Fit each recording whole: one rig (motor timing), "
+                               "sensor (offset, drift, leak) and contact law per recording and "
+                               "channel, the law's state carried from stroke to stroke; "
+                               "--model then names the law (relaxation, relaxation2, rich; "
+                               "default relaxation2)."),
+    channel: list[str] = typer.Option([], help="With --whole: channels to fit (repeatable; "
+                                      "default thumb_x and index_x)."),
 ) -> None:
     """Fit every non-preparatory motion x channel; one row per trial with status and stderr.
 
@@ -65,6 +72,18 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
+    if whole:
+        unsupported = [name for name, used_ in (("--uncertainty", uncertainty != "none"),
+                       ("--plot", plot is not None), ("--tie", tie), ("--fix", fix),
+                       ("--scheduler", scheduler), ("--n-starts", n_starts != 1),
+                       ("--solver", solver != "lm")) if used_]
+        if unsupported:
+            raise typer.BadParameter(f"{', '.join(unsupported)} work on per-motion fits only",
+                                     param_hint="--whole")
+        law = "relaxation2" if model == "auto" else model
+        _fit_whole(files, strict, law, tuple(channel) or ("thumb_x", "index_x"), priors,
+                   out, report)
+        return
     batches, problems, used = _trials(files, strict)
     if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
@@ -114,6 +133,54 @@ def fit(
     typer.echo(f"{len(frame)} trials in {wall:.1f} s; status {counts}; wrote {out}")
     if report:
         typer.echo(fit_report(first, 0))
+
+
+def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
+               priors: dict | None, out: Path, report: bool) -> None:
+    """``fit --whole``: one measurement fit per recording and channel, one row each."""
+    from frictionfit.errors import FrictionfitError, RecordingError
+    from frictionfit.fit import fit_report
+    from frictionfit.fit.measurement import fit_measurements, measurement_data
+    from frictionfit.models import MeasurementModel
+    from frictionfit.recording import read_recording
+
+    try:
+        model = MeasurementModel(law).with_priors(priors)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
+    items, problems = [], []
+    for f in files:
+        try:
+            rec = read_recording(f, on_error="flag")
+            for p in rec.problems:
+                typer.echo(f"{f}: [{p.kind}] {p}", err=True)
+            if rec.disqualified:
+                raise RecordingError(f"{rec.disqualified[0]}", path=f)
+            found = [measurement_data(rec, ch) for ch in channels]
+        except (FrictionfitError, ValueError) as exc:
+            if strict:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+            typer.echo(f"skipped {exc}", err=True)  # one bad file never sinks the batch
+            continue
+        items += found
+        problems += ["; ".join(f"[{p.kind}] {p}" for p in rec.problems)] * len(found)
+    if not items:
+        typer.echo("error: no recording could be fitted from the given paths", err=True)
+        raise typer.Exit(2)
+    typer.echo(f"fitting {len(items)} recording channels whole, law={law} ...")
+    result = fit_measurements(items, model=model)
+    frame = result.to_frame([f"{d.name}/{d.channel}" for d in items])
+    frame.insert(1, "problems", problems)
+    if out.suffix == ".parquet":
+        frame.to_parquet(out)
+    else:
+        frame.to_csv(out, index=False)
+    counts = frame["status"].value_counts().to_dict()
+    typer.echo(f"{len(frame)} recording channels in {result.wall_s:.1f} s; status {counts}; "
+               f"wrote {out}")
+    if report:
+        typer.echo(fit_report(result, 0))
 
 
 @dataclass

@@ -15,6 +15,7 @@ __all__ = ["FEATURE_SETS", "make_features"]
 #: Feature-set name -> "module:Class" of its transformer.
 FEATURE_SETS = {
     "physical": "frictionfit.features.physical:PhysicalFeatures",
+    "fitted": "frictionfit.features.physical:FittedFeatures",
     "handcrafted": "frictionfit.features.handcrafted:HandcraftedFeatures",
     "fftbins": "frictionfit.features.fftbins:FFTBinFeatures",
     "spectral": "frictionfit.features.spectral:SpectralPCAFeatures",

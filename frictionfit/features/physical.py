@@ -2,16 +2,15 @@
 
 For each non-preparatory motion and force channel of a rubbing measurement:
 
-**Fitted** (``fitted=True``): the contact model ``model`` (default ``relaxation``) is
-fitted by :func:`frictionfit.fit.fit_trials` to the motion (moving average of
-``decimate`` samples, then every ``decimate``-th sample: the contact time scales,
-tens of ms and up, survive, and the fit gets ``decimate`` times cheaper). All
-trials of all recordings of a batch go into one ``fit_trials`` call. Kept: ``k``
-(N/mm per nominal mm of stroke), ``f_kin`` (N), ``f_static_excess`` (N), the
-static/kinetic ratio ``(f_kin + f_static_excess) / f_kin`` (1), ``relax_frac`` (1)
-and ``tau`` (s); never the ``offset`` (it is the day's sensor offset, not the
-material) nor the motor's ``delay`` / ``ramp``. ``with_stderr=True`` adds each
-parameter's standard error.
+**Fitted** (``fitted=True``): the whole measurement of each force channel along the
+rubbing direction (``thumb_x``, ``index_x``) is fitted at once by
+:func:`frictionfit.fit.measurement.fit_measurements` (rig, sensor and one contact law,
+the law's state carried from stroke to stroke; blocks of ``decimate`` samples averaged).
+Kept, in log10 where positive: ``k`` (N/mm per nominal mm of stroke), ``f_kin`` (N),
+``f_static_excess`` (N), ``relax_frac`` (1), ``tau`` (s) and ``drag`` (N s/mm); never the
+sensor's offset, drift or leak, nor the motor's timing. ``with_stderr=True`` adds each
+one's standard error (of the log10 where logged). The lateral (y) channels are left to
+the measured quantities: the contact law does not describe them.
 
 **Measured** (``measured=True``), per movement phase (``out``, ``back``), from the
 signal after a moving average of 9 samples, relative to its value ``x0`` at the
@@ -53,14 +52,17 @@ from frictionfit.features._rubbing import (
     command_times,
     motions,
 )
-from frictionfit.models import PARAMS, get_model
+from frictionfit.models import PARAMS
 from frictionfit.recording import Recording
 from frictionfit.segmentation import Motion, moving_average
 
-__all__ = ["FITTED", "MEASURED", "PhysicalFeatures", "measured_phase"]
+__all__ = ["FITTED", "FITTED_CHANNELS", "MEASURED", "FittedFeatures", "PhysicalFeatures",
+           "measured_phase"]
 
-#: Fitted quantities kept (``static_kinetic_ratio`` is derived from two parameters).
-FITTED = ("k", "f_kin", "f_static_excess", "static_kinetic_ratio", "relax_frac", "tau")
+#: Fitted parameters kept (log10 of the positive ones).
+FITTED = ("k", "f_kin", "f_static_excess", "relax_frac", "tau", "drag")
+#: Channels whose force follows the contact law (fitted); the lateral ones are measured only.
+FITTED_CHANNELS = ("thumb_x", "index_x")
 #: Measured quantities per phase and their units.
 MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "s"),
             ("onset_rate", "N/s"), ("t_peak", "s"), ("slip_ripple", "1"),
@@ -141,11 +143,11 @@ class PhysicalFeatures(RecordingFeatures):
         :func:`frictionfit.classify.make_pipeline`, and lower it from 0.81 to 0.76
         without it (too many weakly informative directions for an RBF kernel on
         raw scales).
-    model : str, default "relaxation"
-        Family member fitted (``frictionfit.models.FAMILY``).
-    decimate : int, default 10
-        Moving average and sub-sampling factor before the fit.
-    max_steps : int, default 100
+    model : str, default "relaxation2"
+        Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``).
+    decimate : int, default 1
+        Samples averaged per fitted point while the finger moves (10 while it holds).
+    max_steps : int, default 200
         Solver step budget per trial.
     accept_max_steps : bool, default True
         Keep the last iterate of fits that ran out of steps (their values are
@@ -164,12 +166,12 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 3  # 2: MAP under the movement-duration prior; 3: Nielsen damping in the LM
+    _version = 5  # 5: whole-measurement fits
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
-                 model: str = "relaxation",
-                 decimate: int = 10, max_steps: int = 100, accept_max_steps: bool = True,
+                 model: str = "relaxation2",
+                 decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
                  with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
                  cache: bool = True):
         self.fitted = fitted
@@ -187,16 +189,17 @@ class PhysicalFeatures(RecordingFeatures):
     def _fitted_names(self) -> list[str]:
         names = []
         for p in FITTED:
-            unit = "1" if p == "static_kinetic_ratio" else PARAMS[p].unit
+            unit = PARAMS[p].unit
+            unit = f"log10 {unit}" if PARAMS[p].transform == "loglogit" else unit
             names.append(f"{p} [{unit}]")
-            if self.with_stderr and p != "static_kinetic_ratio":
+            if self.with_stderr:
                 names.append(f"{p}_stderr [{unit}]")
         return names
 
     def _names(self) -> list[str]:
         names = []
         for ch in self.channels:
-            if self.fitted:
+            if self.fitted and ch in FITTED_CHANNELS:
                 names += [f"{ch}:fit_{n}" for n in self._fitted_names()]
             if self.measured:
                 names += [f"{ch}:{p}_{n} [{u}]" for p in PHASES for n, u in self._measured_kept()]
@@ -251,20 +254,19 @@ class PhysicalFeatures(RecordingFeatures):
             except RecordingError as exc:
                 warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=2)
                 found.append(None)
-        fits = self._fit_all([m for ms in found if ms for m in ms]) if self.fitted else None
+        fits = self._fit_all(recordings) if self.fitted else None
+        width = len(self._fitted_names())
         out: list[np.ndarray | None] = []
-        k = 0
-        for ms in found:
+        for i, ms in enumerate(found):
             if not ms:
                 out.append(None)
                 continue
             rows = []
             for m in ms:
                 row = []
-                for j in range(len(self.channels)):
-                    if fits is not None:
-                        row.append(fits[k])
-                        k += 1
+                for j, ch in enumerate(self.channels):
+                    if fits is not None and ch in FITTED_CHANNELS:
+                        row.append(fits[i].get(ch, np.full(width, np.nan)))
                     if self.measured:
                         row.append(self._measured(m, j))
                 rows.append(np.concatenate(row))
@@ -280,44 +282,55 @@ class PhysicalFeatures(RecordingFeatures):
         return np.concatenate([measured_phase(x, rate, cmd[p], ends[p], int(round(0.3 * rate)))[:n]
                                for p in PHASES])
 
-    def _fit_all(self, all_motions: list[Motion]) -> np.ndarray:
-        """One ``fit_trials`` call for every (motion, channel); rows of fitted features."""
-        width = len(self._fitted_names())
-        if not {"f_static_excess", "relax_frac", "tau"} <= set(get_model(self.model).param_names):
-            raise ValueError(f"physical features need a model with static friction and "
-                             f"relaxation ('relaxation' or 'rich'), not {self.model!r}")
-        if not all_motions:
-            return np.empty((0, width))
-        from frictionfit.fit import fit_trials
+    def _fit_all(self, recordings: Sequence[Recording]) -> list[dict[str, np.ndarray]]:
+        """Per recording, channel -> row of fitted features, from one whole-measurement fit
+        of every (recording, fitted channel) in one batch (NaN rows where a fit failed)."""
+        from frictionfit.fit.measurement import fit_measurements, measurement_data
+        from frictionfit.models import MeasurementModel
 
-        n = min(m.samples.shape[0] for m in all_motions)
-        d = self.decimate
-        ys, t_out, t_back = [], [], []
-        for m in all_motions:
-            x = moving_average(channel_samples(m, self.channels)[:n], d)[::d] if d > 1 \
-                else channel_samples(m, self.channels)[:n]
-            ys += list(x.T)
-            t_out += [m.t_out] * x.shape[1]
-            t_back += [m.t_back] * x.shape[1]
-        t = all_motions[0].t[:n][::d]
-        res = fit_trials(np.asarray(ys), t, (np.asarray(t_out), np.asarray(t_back)),
-                         model=self.model, max_steps=self.max_steps)
+        width = len(self._fitted_names())
+        fitted = [c for c in self.channels if c in FITTED_CHANNELS]
+        items, where = [], []
+        for i, rec in enumerate(recordings):
+            for ch in fitted:
+                try:
+                    items.append(measurement_data(rec, ch, decimate=self.decimate))
+                    where.append((i, ch))
+                except ValueError as exc:
+                    warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=3)
+        out: list[dict[str, np.ndarray]] = [{} for _ in recordings]
+        if not items:
+            return out
+        res = fit_measurements(items, model=MeasurementModel(self.model),
+                               max_steps=self.max_steps)
         ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
         if self.accept_max_steps:
             ok.add(Status.MAX_STEPS)
-        rows = np.full((res.n_trials, width), np.nan)
-        for i in range(res.n_trials):
-            if Status(int(res.status[i])) in ok:
-                rows[i] = self._fitted_row(res.values[i], res.stderr[i])
-        return rows
+        for k, (i, ch) in enumerate(where):
+            good = Status(int(res.status[k])) in ok
+            out[i][ch] = (np.asarray(self._fitted_row(res.values[k], res.stderr[k])) if good
+                          else np.full(width, np.nan))
+        return out
 
     def _fitted_row(self, values: dict, stderr: dict) -> list[float]:
+        """Log10 of the positive parameters (stderr of the log10 with ``with_stderr``)."""
         row = []
         for p in FITTED:
-            if p == "static_kinetic_ratio":
-                row.append((values["f_kin"] + values["f_static_excess"]) / values["f_kin"])
-                continue
-            row.append(values[p])
+            logged = PARAMS[p].transform == "loglogit"
+            row.append(np.log10(values[p]) if logged else values[p])
             if self.with_stderr:
-                row.append(stderr[p])
+                row.append(stderr[p] / (values[p] * np.log(10)) if logged else stderr[p])
         return row
+
+
+class FittedFeatures(PhysicalFeatures):
+    """The fitted contact-law parameters alone (:class:`PhysicalFeatures` with
+    ``fitted=True, measured=False``): every feature a physical property of the contact."""
+
+    def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
+                 model: str = "relaxation2",
+                 decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
+                 with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
+                 cache: bool = True):
+        super().__init__(fitted, measured, shape, model, decimate, max_steps, accept_max_steps,
+                         with_stderr, channels, cache)

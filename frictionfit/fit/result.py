@@ -125,8 +125,13 @@ class FitResult:
         return np.isfinite(y) & ~saturated_samples(y)
 
     def member(self, i: int):
-        """Trial ``i``'s :class:`~frictionfit.models.ContactModel`, with drive and priors."""
-        from frictionfit.models import get_model
+        """Trial ``i``'s :class:`~frictionfit.models.ContactModel` (with drive and priors), or
+        its :class:`~frictionfit.models.MeasurementModel` for a whole-measurement fit."""
+        from frictionfit.models import MeasurementModel, get_model
+
+        if self.model[i].startswith("measurement-"):
+            law = self.model[i].removeprefix("measurement-")
+            return MeasurementModel(law, self.stroke_mm).with_priors(self.priors)
 
         return get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm,
                          priors=self.priors)

@@ -56,6 +56,14 @@ PARAMS: dict[str, Param] = {
               "fraction of the remaining force that relaxes (branch 2)"),
         Param("tau2", "s", 1e-4, 100.0, 2.0, "loglogit", "relaxation time of branch 2"),
         Param("damping", "N s/mm", 1e-7, 10.0, 1e-4, "loglogit", "viscous (bristle) damping"),
+        # of the whole-measurement model (frictionfit.models.measurement) only
+        Param("drift", "N/s", -1e3, 1e3, 0.0, "identity", "slow linear drift of the channel"),
+        Param("leak", "N/mm", -1e3, 1e3, 0.0, "identity",
+              "signal proportional to the finger's travel (normal-force leakage)"),
+        Param("accel", "1", 0.005, 0.5, 0.1, "logit",
+              "share of a movement spent accelerating (and as long braking)"),
+        Param("drag", "N s/mm", 1e-7, 10.0, 1e-3, "loglogit",
+              "sliding drag proportional to the finger's velocity"),
     )
 }
 

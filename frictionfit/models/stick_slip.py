@@ -94,6 +94,9 @@ def contact_force(
 ):
     """Tangential force (N) for a drive displacement ``x`` (mm) sampled every ``dt`` s.
 
+    ``dt``: one interval (s), or one per sample (``dt[i] = t[i] - t[i-1]``, ``dt[0]`` any
+    positive value) for a non-uniform grid: every update is exact for any interval.
+
     Parameters (physical units): ``k`` N/mm, ``f_kin`` N, ``f_static_excess`` N
     (static minus kinetic level), ``slip_length`` mm, ``relax_frac`` and
     ``relax_frac2`` (fractions of the instantaneous force that relax; their sum is
@@ -105,15 +108,21 @@ def contact_force(
     unrolling (2 measured fastest on a 2-core CPU for batched Jacobians).
     """
     weakening = f_static_excess is not None
-    branches = []
+    fracs, taus = [], []
     if relax_frac is not None:
-        branches.append((relax_frac, *maxwell_coefficients(dt, tau)))
+        fracs.append(relax_frac)
+        taus.append(tau)
         if relax_frac2 is not None:
-            branches.append((relax_frac2 * (1.0 - relax_frac), *maxwell_coefficients(dt, tau2)))
+            fracs.append(relax_frac2 * (1.0 - relax_frac))
+            taus.append(tau2)
+    per_step = jnp.ndim(dt) > 0  # a non-uniform grid: one interval per sample
+    coefs = tuple(maxwell_coefficients(dt, tau_j) for tau_j in taus)
     inv_slip = 1.0 / slip_length
     inv_k = 1.0 / k
 
-    def step(carry, x_new):
+    def step(carry, xs):
+        x_new, inv_dt, step_coefs = xs if per_step else (xs, 1.0 / dt, coefs)
+        branches = [(f, a, g) for f, (a, g) in zip(fracs, step_coefs, strict=True)]
         z, s, ws, x_old, direction = carry
         dx = x_new - x_old
         moving = dx != 0.0
@@ -132,10 +141,11 @@ def contact_force(
         elastic = z_new - sum(frac * w for w, (frac, _, _) in zip(ws, branches, strict=True))
         force = k * elastic
         if damping is not None:
-            force = force + damping * (z_new - z) / dt
+            force = force + damping * (z_new - z) * inv_dt
         return (z_new, s, ws, x_new, new_dir), force
 
     zero = jnp.zeros((), dtype=x.dtype)
-    init = (zero, zero, (zero,) * len(branches), x[0], jnp.ones((), dtype=x.dtype))
-    _, force = jax.lax.scan(step, init, x, unroll=unroll)
+    init = (zero, zero, (zero,) * len(fracs), x[0], jnp.ones((), dtype=x.dtype))
+    xs = (x, 1.0 / dt, coefs) if per_step else x
+    _, force = jax.lax.scan(step, init, xs, unroll=unroll)
     return force

@@ -1,0 +1,407 @@
+"""Fit whole rubbing measurements: one rig, sensor and material per recording and channel.
+
+:func:`fit_measurements` puts one channel of each recording on its uniform time grid
+(dropped rows, NaN, spikes and stuck values masked), averages blocks of ``decimate``
+samples, and fits :class:`~frictionfit.models.MeasurementModel` to every recording with
+the batched Levenberg-Marquardt of :func:`~frictionfit.fit._lm.solve_pool` (pools of
+recordings, slots refilled). The first ``skip_motions`` motions are simulated (they set
+the contact's state) but not fitted: closing the fingers leaves an unknown internal force.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from frictionfit._system import available_cores
+from frictionfit.errors import Status
+from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
+from frictionfit.fit._problem import noise_scale
+from frictionfit.fit._stats import statistics, status_of
+from frictionfit.fit.result import FitResult
+from frictionfit.models import PARAMS, MeasurementModel
+from frictionfit.models.measurement import to_unconstrained
+from frictionfit.recording import Recording
+from frictionfit.segmentation import moving_average, regrid, suspect_samples
+
+__all__ = ["MeasurementData", "fit_measurements", "measurement_data"]
+
+
+#: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
+#: movement and the fast start of the relaxation. The rest is averaged over ``coarse``.
+FINE_S = 0.3
+
+
+@dataclass(frozen=True)
+class MeasurementData:
+    """One channel of one recording, ready to fit.
+
+    ``y`` (N): block means at times ``t`` (s, increasing, not uniform); ``weight``: the
+    square root of each block's sample count (0: not fitted); ``noise``: the sd (N) of one
+    sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
+    ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1) and
+    the recording's ``session`` (metadata; ``None`` when absent).
+    """
+
+    name: str
+    channel: str
+    t: np.ndarray
+    y: np.ndarray
+    weight: np.ndarray
+    noise: float
+    commands: np.ndarray
+    signs: np.ndarray
+    direction: float
+    guess: dict
+    session: object = None
+
+    @property
+    def mask(self) -> np.ndarray:
+        """The blocks the fit uses."""
+        return self.weight > 0
+
+
+def _move_signs(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) of the ``move`` events and their signs: the first target is out (+1)."""
+    moves = [e for e in rec.events if e.kind == "move"]
+    if not moves:
+        raise ValueError(f"{rec.name}: no 'move' events; a measurement fit needs the commands")
+    out = moves[0].target
+    return (np.array([e.t for e in moves]),
+            np.array([1.0 if e.target == out else -1.0 for e in moves]))
+
+
+def _block_edges(t: np.ndarray, commands: np.ndarray, fine: int, coarse: int) -> np.ndarray:
+    """Sample indices where blocks start (and the end): ``fine`` samples per block within
+    ``FINE_S`` after a command, ``coarse`` elsewhere; no block straddles a zone boundary."""
+    in_fine = np.zeros(t.size, dtype=bool)
+    for c in commands:
+        in_fine |= (t >= c) & (t < c + FINE_S)
+    bounds = np.flatnonzero(np.diff(in_fine.astype(np.int8))) + 1
+    edges = []
+    for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, t.size], strict=True):
+        edges.append(np.arange(lo, hi, fine if in_fine[lo] else coarse))
+    return np.r_[np.concatenate(edges), t.size]
+
+
+def _block_means(t, y, ok, edges) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per block: mean time and value of its usable samples, and their count (a block with
+    fewer than half its samples usable counts 0)."""
+    idx = np.repeat(np.arange(edges.size - 1), np.diff(edges))
+    count = np.bincount(idx, weights=ok, minlength=edges.size - 1)
+    size = np.diff(edges)
+    t_mean = np.bincount(idx, weights=np.where(ok, t, 0.0)) / np.maximum(count, 1)
+    t_mean = np.where(count > 0, t_mean, np.bincount(idx, weights=t) / size)
+    y_mean = np.bincount(idx, weights=np.where(ok, y, 0.0)) / np.maximum(count, 1)
+    return t_mean, y_mean, np.where(count * 2 >= size, count, 0.0)
+
+
+def _guess(t, y, ok, commands, signs, stroke_mm: float) -> tuple[float, dict]:
+    """Direction and starting values from the holds and peaks of the strokes (``t``
+    uniform, ``y`` with NaN where not usable)."""
+    smooth = moving_average(np.where(ok, y, np.nan), 9)
+    holds = {+1.0: [], -1.0: []}
+    peaks, slopes = [], []
+    for c, s in zip(commands, signs, strict=True):
+        hold = (t > c + 0.5) & (t < c + 0.95)
+        if np.isfinite(smooth[hold]).any():
+            holds[s].append(np.nanmedian(smooth[hold]))
+    lo = np.median(holds[-1.0]) if holds[-1.0] else np.nanmedian(smooth)
+    hi = np.median(holds[+1.0]) if holds[+1.0] else np.nanmedian(smooth)
+    direction = 1.0 if hi >= lo else -1.0
+    mid, hold = 0.5 * (hi + lo), 0.5 * abs(hi - lo)
+    for c, s in zip(commands, signs, strict=True):
+        win = (t > c) & (t < c + 0.4)
+        dev = direction * s * (smooth[win] - mid)
+        if np.isfinite(dev).any():
+            peaks.append(np.nanmax(dev))
+            slopes.append(np.nanmax(np.gradient(dev) / (t[1] - t[0])))
+    peak = max(float(np.median(peaks)) if peaks else 1.0, 1e-3)
+    slope = float(np.median(slopes)) if slopes else 10.0
+    ramp = 0.125
+    guess = {"offset": mid, "k": max(slope * ramp / stroke_mm, 1e-2),
+             "f_kin": 0.8 * peak, "f_static_excess": 0.2 * peak,
+             "relax_frac": float(np.clip(1.0 - hold / peak, 0.05, 0.8)), "tau": 0.15,
+             "relax_frac2": 0.1, "tau2": 1.0, "ramp": ramp, "delay": 0.025}
+    return direction, guess
+
+
+def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse: int = 10,
+                     skip_motions: int = 1, stroke_mm: float = 1.0) -> MeasurementData:
+    """One channel of ``rec``, faults masked (dropped rows, NaN, spikes, stuck values), as
+    block means: ``decimate`` samples per block while the finger moves, ``coarse`` while it
+    holds; the blocks before the out command of motion ``skip_motions`` are not fitted."""
+    if channel not in rec.channel_names:
+        raise ValueError(f"{rec.name}: no channel {channel!r}; channels are "
+                         f"{list(rec.channel_names)}")
+    commands, signs = _move_signs(rec)
+    t_grid, grid = regrid(rec)
+    spike, stuck = suspect_samples(grid)
+    j = rec.channel_names.index(channel)
+    ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck
+    y = np.where(ok, grid[:, j], 0.0)
+    direction, guess = _guess(t_grid, np.where(ok, y, np.nan), ok, commands, signs, stroke_mm)
+    t, y_mean, count = _block_means(t_grid, y, ok,
+                                    _block_edges(t_grid, commands, decimate, coarse))
+    first = 2 * skip_motions
+    start = commands[first] if first < commands.size else np.inf
+    noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
+    return MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
+                           commands, signs, direction, guess, rec.metadata.get("session"))
+
+
+@lru_cache(maxsize=16)
+def _normal_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """``normal(u_free, data) -> (0.5 |r|^2, J^T J, J^T r)`` over the ``free`` parameters
+    (the others from the data's ``base`` vector): masked residuals, then the priors scaled
+    by the recording's noise sd (so the optimum is the MAP estimate)."""
+    free_idx = jnp.asarray(free)
+
+    def residual(u_free, data):
+        y, weight, t, commands, signs, direction, noise, base = data
+        u = base.at[free_idx].set(u_free)
+        pred = model.predict(u, t, commands, signs, direction)
+        return jnp.concatenate([weight * (pred - y), noise * model.prior_residuals(u)])
+
+    def normal(u_free, data):
+        jac, r = jax.jacfwd(lambda v: (residual(v, data),) * 2, has_aux=True)(u_free)
+        return 0.5 * r @ r, jac.T @ jac, jac.T @ r
+
+    return normal, residual
+
+
+def _stack(items: Sequence[MeasurementData], base: np.ndarray):
+    """The batch as padded arrays (the solver's per-trial data pytree): past its end an
+    item's grid goes on in 1-ms steps with weight 0."""
+    n = max(d.y.size for d in items)
+    m = max(d.commands.size for d in items)
+
+    def pad(a, size, step=0.0):
+        tail = (a[-1] if step else 0.0) + step * np.arange(1, size - a.size + 1)
+        return np.concatenate([a, tail])
+
+    return (np.stack([pad(d.y, n) for d in items]), np.stack([pad(d.weight, n) for d in items]),
+            np.stack([pad(d.t, n, 1e-3) for d in items]),
+            np.stack([pad(d.commands, m) + np.r_[np.zeros(d.commands.size),
+                                                 np.full(m - d.commands.size, 1e9)]
+                      for d in items]),  # padding commands never come
+            np.stack([pad(d.signs, m) for d in items]),
+            np.array([d.direction for d in items]), np.array([d.noise for d in items]), base)
+
+
+#: The rig's parameters: shared by every recording of a session with ``rig="session"``.
+RIG = ("delay", "ramp", "accel")
+
+
+def fit_measurements(
+    items: Sequence[MeasurementData],
+    *,
+    model: MeasurementModel | None = None,
+    rig: str = "recording",
+    timing: str = "movement",
+    fix: Mapping[str, float | np.ndarray] | None = None,
+    u0: np.ndarray | None = None,
+    max_steps: int = 200,
+    pool_size: int = 16,
+    threads: int | None = None,
+    progress: bool | None = None,
+) -> FitResult:
+    """Fit ``model`` (default: :class:`MeasurementModel`, ``relaxation2`` law) to every item.
+
+    ``rig="session"``: fit every item, then hold the rig's :data:`RIG` parameters at their
+    median over each session's converged fits and fit again from there (the motor is the
+    same for every recording of a day). ``timing="movement"``: then shift each movement's
+    command by its own latency deviation (found per movement at the first optimum) and fit
+    again; ``"rig"``: one latency for all. ``fix``: name -> physical value (one, or one per
+    item) held fixed. ``u0``: unconstrained starting points (default: the data's guess).
+    Returns a :class:`FitResult` with one row per item (values in physical units,
+    lmfit-style statistics, flags of what the data do not determine, a status each).
+    """
+    if rig not in ("recording", "session"):
+        raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
+    if timing not in ("movement", "rig"):
+        raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
+    model = MeasurementModel("relaxation2") if model is None else model
+    start = time.perf_counter()
+    kw = dict(model=model, max_steps=max_steps, pool_size=pool_size, threads=threads,
+              progress=progress)
+    result = _fit(items, fix=fix, u0=u0, **kw)
+    held = dict(fix or {}) | (_session_rig(items, result) if rig == "session" else {})
+    if timing == "movement":
+        items = _with_movement_timing(model, items, result)
+    if held != dict(fix or {}) or timing == "movement":
+        result = _fit(items, fix=held, u0=np.stack(result.u), **kw)
+    result.wall_s = time.perf_counter() - start
+    return result
+
+
+#: Per-movement onset shifts searched (s): the motor's latency jitters from one command to
+#: the next (serial link, controller loop); a shared delay would smear every static peak.
+SHIFTS_S = np.arange(-8.0, 8.25, 0.5) * 1e-3
+
+
+@lru_cache(maxsize=8)
+def _window_costs_fn(model: MeasurementModel):
+    """Jitted: the weighted residual sum of squares in each command's fine window, for every
+    common shift of the commands in ``SHIFTS_S``: ``(n_shifts, n_commands)``."""
+    def costs(u, y, weight, t, commands, signs, direction):
+        def one(shift):
+            pred = model.predict(u, t, commands + shift, signs, direction)
+            r2 = (weight * (pred - y)) ** 2
+            inside = (t[:, None] >= commands[None, :]) & (t[:, None] < commands[None, :] + FINE_S)
+            return r2 @ inside.astype(r2.dtype)
+
+        return jax.vmap(one)(jnp.asarray(SHIFTS_S))
+
+    return jax.jit(costs)
+
+
+def _with_movement_timing(model: MeasurementModel, items: Sequence[MeasurementData],
+                          result: FitResult) -> list[MeasurementData]:
+    """Items whose command times carry each movement's own latency deviation: per fine
+    window, the shift in :data:`SHIFTS_S` that fits it best at the first fit's optimum,
+    minus their median (the shared ``delay`` keeps the typical latency)."""
+    fn = _window_costs_fn(model)
+    out = []
+    for d, u in zip(items, result.u, strict=True):
+        cost = np.asarray(fn(jnp.asarray(u), d.y, d.weight, d.t, d.commands, d.signs,
+                             d.direction))
+        seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
+        shift = np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
+        if seen.any():
+            shift[seen] -= np.median(shift[seen])
+        out.append(replace(d, commands=d.commands + shift))
+    return out
+
+
+def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[str, np.ndarray]:
+    """Per item, the median of :data:`RIG` over its session's usable fits (its own where none)."""
+    usable = np.isin(result.status, [int(Status.CONVERGED), int(Status.ILL_CONDITIONED)])
+    sessions = np.array([str(d.session) for d in items])
+    held = {}
+    for name in RIG:
+        own = np.array([v[name] for v in result.values])
+        value = own.copy()
+        for s in np.unique(sessions):
+            pick = (sessions == s) & usable
+            if pick.any():
+                value[sessions == s] = np.median(own[pick])
+        held[name] = value
+    return held
+
+
+def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> FitResult:
+    """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`)."""
+    fix = dict(fix or {})
+    unknown = [n for n in fix if n not in model.param_names]
+    if unknown:
+        raise ValueError(f"cannot fix {unknown}: parameters are {list(model.param_names)}")
+    base = (np.stack([to_unconstrained(model, d.guess) for d in items]) if u0 is None
+            else np.array(u0, dtype=np.float64))
+    for name, value in fix.items():
+        j = model.param_names.index(name)
+        base[:, j] = PARAMS[name].to_unconstrained(np.broadcast_to(value, (len(items),)))
+    free = tuple(j for j, n in enumerate(model.param_names) if n not in fix)
+    data = _stack(items, base)
+    normal, _ = _normal_fn(model, free)
+    threads = available_cores() if threads is None else threads
+    show = len(items) >= 8 if progress is None else progress
+    with tqdm(total=len(items), desc="fit", unit="rec", disable=not show) as bar:
+        u_free, code, steps = solve_pool(normal, base[:, free], data,
+                                         LMConfig(max_steps=max_steps), pool_size, threads,
+                                         progress=bar.update)
+    u = base.copy()
+    u[:, free] = u_free
+    if not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix):
+        u = _faster_branch_first(model, u)
+    resid, jtj = _at_optimum(model, free, u[:, free], data)
+    weight = data[1]
+    mask = weight > 0
+    stats = statistics(model, u, resid, jtj, mask, free, tuple(fix))
+    y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
+    ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
+    r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
+    names = [model.param_names[j] for j in free]
+    cond = np.array([_cond_inside(jtj[i], [stats["flags"][i].get(n) != "at bound" for n in names])
+                     for i in range(len(items))])
+    status = np.array([status_of(len(free), code[i] == CONVERGED, u[i], stats["chi2"][i],
+                                 cond[i], mask[i]) for i in range(len(items))])
+    return FitResult(
+        model=[model.name] * len(items), values=stats["values"], stderr=stats["stderr"],
+        flags=stats["flags"], status=status.astype(np.int64), chi2=stats["chi2"],
+        redchi=stats["redchi"], aic=stats["aic"], bic=stats["bic"], r2=r2, cond=cond,
+        n_steps=steps, u=list(u), direction=data[5],
+        init=[_physical_init(model, d.guess) for d in items],
+        correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model))
+
+
+def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
+    """Condition number of the column-scaled ``J^T J`` over the parameters not at a bound.
+
+    A parameter pinned at a bound (flagged "at bound": a static peak the data do not show, a
+    branch that relaxes as far as allowed) has a vanishing column in the fit's coordinates;
+    it is reported at the bound, and the conditioning that matters is the others'.
+    """
+    keep = np.flatnonzero(inside)
+    a = jtj[np.ix_(keep, keep)]
+    if not np.all(np.isfinite(a)):
+        return np.inf
+    scale = np.sqrt(np.maximum(np.diag(a), 1e-300))
+    ev = np.linalg.eigvalsh(a / np.outer(scale, scale))
+    return float(ev[-1] / ev[0]) if ev[0] > 0 else np.inf
+
+
+def _physical_init(model: MeasurementModel, guess: dict) -> dict:
+    """The starting point in physical units, every parameter (defaults where not guessed)."""
+    return {p.name: float(guess.get(p.name, p.default)) for p in model.params}
+
+
+def _prior_dict(model: MeasurementModel) -> dict | None:
+    return None if model.priors is None else dict(model.prior_table)
+
+
+def _faster_branch_first(model: MeasurementModel, u: np.ndarray) -> np.ndarray:
+    """Relabel the two Maxwell branches where ``tau > tau2`` (the same force: branch weights
+    ``relax_frac`` and ``relax_frac2 (1 - relax_frac)`` swapped), so ``tau`` is the faster."""
+    names = model.param_names
+    if "tau2" not in names:
+        return u
+    v = model.physical(u)
+    swap = v["tau"] > v["tau2"]
+    w1, w2 = v["relax_frac"], v["relax_frac2"] * (1.0 - v["relax_frac"])
+    new = {"tau": v["tau2"], "tau2": v["tau"], "relax_frac": w2,
+           "relax_frac2": w1 / np.maximum(1.0 - w2, 1e-12)}
+    u = u.copy()
+    for name, value in new.items():
+        j = names.index(name)
+        u[swap, j] = PARAMS[name].to_unconstrained(value[swap])
+    return u
+
+
+@lru_cache(maxsize=16)
+def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted ``(u_free, data) -> (data residuals, J^T J with the prior rows)`` of one item."""
+    _, residual = _normal_fn(model, free)
+
+    def one(u_free, data):
+        jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u_free)
+        return r[: data[0].shape[-1]], jac.T @ jac
+
+    return jax.jit(one)
+
+
+def _at_optimum(model: MeasurementModel, free: tuple[int, ...], u_free, data):
+    """Data residuals and ``J^T J`` at ``u_free``, one item at a time."""
+    fn = _jacobian_fn(model, free)
+    out = [fn(u_free[i], jax.tree_util.tree_map(lambda a, i=i: a[i], data))
+           for i in range(u_free.shape[0])]
+    return np.stack([np.asarray(r) for r, _ in out]), np.stack([np.asarray(a) for _, a in out])
+
+

@@ -1,0 +1,172 @@
+"""One force channel of a whole rubbing measurement: rig, sensor and material, each fitted once.
+
+A measurement is several back-to-back motions of the same contact. Its parameters
+live at three levels, and this model gives each one value per measurement:
+
+- **rig**: the motor's ``delay`` after each ``move`` command, the movement duration
+  ``ramp`` and the share ``accel`` of it spent accelerating (and as long braking):
+  a trapezoid velocity profile, the same for every movement;
+- **sensor**: the channel's ``offset``, its slow ``drift`` (N/s) and a ``leak`` (N per
+  mm of finger travel: normal force leaking into the channel as the finger moves);
+- **material**: one contact law (:func:`~frictionfit.models.stick_slip.contact_force`)
+  driven through the whole measurement, so every stroke starts from the state the
+  previous one left, plus a sliding ``drag`` proportional to the finger's velocity.
+
+Why not one fit per motion: there, the loading fixes only ``k / ramp**2`` (a ridge) and
+the start from rest puts the held force of the previous stroke into the offset. Here the
+motor stops at the same time after every command (which fixes ``ramp``), its cruise
+speed turns the loading slope into ``k``, and the carried state is simulated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from frictionfit.models.family import PARAMS
+from frictionfit.models.params import Param
+from frictionfit.models.stick_slip import contact_force
+
+__all__ = ["LAWS", "MeasurementModel", "to_unconstrained", "trapezoid"]
+
+#: Default priors of the measurement model beyond the parameters' own: the slip-weakening
+#: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with
+#: no static peak has a second optimum: a "static excess" that never weakens within the
+#: stroke (slip length >> stroke) standing in for the kinetic level, f_kin near zero.
+PRIORS = {"slip_length": (0.05, 1.5)}
+
+#: Contact laws of the measurement model, simplest first (names of ``contact_force`` arguments).
+LAWS: dict[str, tuple[str, ...]] = {
+    "relaxation": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau"),
+    "relaxation2": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
+                    "relax_frac2", "tau2"),
+    "rich": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
+             "relax_frac2", "tau2", "damping"),
+}
+
+
+def trapezoid(u, accel):
+    """Position (0 to 1) and velocity (per unit ``u``) of a trapezoid-velocity move.
+
+    ``u``: time since the move started over its duration; ``accel``: the share of the
+    duration spent accelerating (as long braking), in (0, 0.5).
+    """
+    v = jnp.clip(u, 0.0, 1.0)
+    top = 1.0 / (1.0 - accel)
+    rate = top / accel
+    head = jnp.minimum(v, accel)
+    tail = jnp.clip(v - (1.0 - accel), 0.0, accel)
+    pos = (0.5 * rate * head**2 + top * jnp.clip(v - accel, 0.0, 1.0 - 2.0 * accel)
+           + top * tail - 0.5 * rate * tail**2)
+    inside = (u > 0.0) & (u < 1.0)
+    vel = jnp.where(inside, jnp.minimum(top, rate * jnp.minimum(v, 1.0 - v)), 0.0)
+    return pos, vel
+
+
+class MeasurementModel(eqx.Module):
+    """One channel of a whole measurement: ``offset + drift t + leak x + direction F``.
+
+    ``law``: a key of :data:`LAWS`. ``stroke_mm``: the nominal travel of a movement
+    (stiffness is reported per nominal mm). ``priors``: ``(name, centre, sd)`` on the
+    sampling coordinates, as for :class:`~frictionfit.models.ContactModel` (default: each
+    parameter's own prior).
+    """
+
+    law: str = eqx.field(static=True, default="rich")
+    stroke_mm: float = eqx.field(static=True, default=1.0)
+    priors: tuple[tuple[str, float, float], ...] | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if self.law not in LAWS:
+            raise ValueError(f"unknown law {self.law!r}; choose from {list(LAWS)}")
+
+    @property
+    def name(self) -> str:
+        return f"measurement-{self.law}"
+
+    @property
+    def law_names(self) -> tuple[str, ...]:
+        return LAWS[self.law]
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return ("offset", "drift", "leak", *self.law_names, "drag", "delay", "ramp", "accel")
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        return tuple(PARAMS[n] for n in self.param_names)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def with_priors(self, priors: Mapping[str, tuple[float, float] | None] | None = None
+                    ) -> MeasurementModel:
+        """This model with the default priors updated by ``priors`` (``None``: flat)."""
+        table = {p.name: p.prior for p in self.params} | {
+            n: p for n, p in PRIORS.items() if n in self.param_names}
+        for name, prior in (priors or {}).items():
+            if name not in table:
+                raise ValueError(f"no parameter {name!r} to put a prior on; "
+                                 f"parameters are {list(self.param_names)}")
+            table[name] = None if prior is None else PARAMS[name].check_prior(prior)
+        chosen = tuple((n, *p) for n, p in table.items() if p is not None)
+        return MeasurementModel(self.law, self.stroke_mm, chosen)
+
+    @property
+    def prior_table(self) -> dict[str, tuple[float, float]]:
+        """Name -> ``(centre, sd)`` of the priors in force (default: :data:`PRIORS`, then
+        each parameter's own)."""
+        if self.priors is None:
+            own = {p.name: p.prior for p in self.params if p.prior is not None}
+            return own | {n: p for n, p in PRIORS.items() if n in self.param_names}
+        return {n: (c, sd) for n, c, sd in self.priors}
+
+    def prior_residuals(self, u):
+        """``(x_j - centre_j) / sd_j`` per prior (sampling coordinates), ``(..., n_priors)``."""
+        rows = []
+        for name, prior in self.prior_table.items():
+            par = PARAMS[name]
+            centre, sd = par.prior_in_sampling(prior)
+            rows.append((par.to_sampling(u[..., self.param_names.index(name)]) - centre) / sd)
+        if not rows:
+            return jnp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
+        return jnp.stack(rows, axis=-1)
+
+    def physical(self, u):
+        """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
+        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
+
+    def finger(self, u, t, commands, signs):
+        """Finger travel (mm) and velocity (mm/s) at times ``t`` (s).
+
+        ``commands``: the ``move`` command times (s, increasing); ``signs``: +1 for a move
+        out, -1 for a move back, 0 for padding. Each movement ends before the next command
+        (as in the rubbing protocol), so at any time at most the last one commanded is
+        under way and only that one is evaluated.
+        """
+        v = self.physical(u)
+        last = jnp.searchsorted(commands, t, side="right") - 1  # -1: before the first
+        now = jnp.maximum(last, 0)
+        sign = jnp.where(last >= 0, signs[now], 0.0)
+        done = jnp.concatenate([jnp.zeros(1, dtype=signs.dtype), jnp.cumsum(signs)])[now]
+        pos, vel = trapezoid((t - commands[now] - v["delay"]) / v["ramp"], v["accel"])
+        return self.stroke_mm * (done + sign * pos), self.stroke_mm / v["ramp"] * sign * vel
+
+    def predict(self, u, t, commands, signs, direction):
+        """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
+        from rest at ``t[0]``."""
+        v = self.physical(u)
+        x, speed = self.finger(u, t, commands, signs)
+        dt = jnp.diff(t, prepend=2.0 * t[0] - t[1])
+        force = contact_force(x, dt, **{n: v[n] for n in self.law_names})
+        force = force + v["drag"] * speed
+        return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
+
+
+def to_unconstrained(model: MeasurementModel, values: Mapping[str, float]) -> np.ndarray:
+    """Unconstrained vector of ``model`` from physical ``values`` (defaults where absent)."""
+    return np.array([p.to_unconstrained(values.get(p.name, p.default)) for p in model.params])
