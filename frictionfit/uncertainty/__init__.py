@@ -36,13 +36,13 @@ from emcee.backends import HDFBackend
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
+from frictionfit.fit._noise import noise_estimate
 from frictionfit.models import get_model
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import (
     TrialData,
     from_sampling,
     logp_rows,
-    noise_estimate,
     residuals,
     to_sampling,
 )

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit._noise import ar1_innovations
 from frictionfit.models import ContactModel
 from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, TrialData, logp_rows
 
@@ -47,10 +48,8 @@ def _curvature(model: ContactModel):
 
     def whitened(u, t, y, mask, t_out, t_back, direction, sigma, rho):
         r = jnp.where(mask, model.predict(u, t, (t_out, t_back), direction) - y, 0.0)
-        prev_ok = jnp.concatenate([jnp.zeros(1, dtype=bool), mask[:-1]])
-        prev = jnp.concatenate([jnp.zeros(1, dtype=r.dtype), r[:-1]])
-        innov = jnp.where(prev_ok, r - rho * prev, r)
-        sd = jnp.where(prev_ok, sigma * jnp.sqrt(1.0 - rho**2), sigma)
+        innov, factor = ar1_innovations(r, mask, rho)
+        sd = sigma * jnp.sqrt(factor)
         # The model's Normal priors are residual rows of their own (Gauss-Newton too).
         return jnp.concatenate([jnp.where(mask, innov / sd, 0.0), model.prior_residuals(u)])
 
