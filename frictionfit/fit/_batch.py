@@ -20,6 +20,7 @@ from frictionfit.fit._guess import (
     trial_keys,
 )
 from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
+from frictionfit.fit._numerics import pad_rows
 from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
 from frictionfit.fit._problem import jacobian_fn, noise_scale, normal_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
@@ -41,7 +42,7 @@ def _at_optimum(model, free, u, data, chunk):
     resid, jtj = [], []
     for start in range(0, n, chunk):
         idx = np.arange(start, min(start + chunk, n))
-        rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
+        rows = pad_rows(idx, chunk)
         r, a = fn(u[rows][:, list(free)], jax.tree_util.tree_map(lambda x, r=rows: x[r], data))
         resid.append(np.asarray(r)[: idx.size])
         jtj.append(np.asarray(a)[: idx.size])

@@ -34,6 +34,7 @@ import pandas as pd
 
 from frictionfit.errors import Status
 from frictionfit.fit._noise import RHO_MAX, ar1_deviance
+from frictionfit.fit._numerics import fd_slope, scaled_condition
 from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
@@ -55,17 +56,15 @@ GATE_SDS = 2.0
 
 def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Physical values and d(physical)/du (central difference of the transform)."""
-    h = 1e-6
     u = np.asarray(u, dtype=np.float64)
-    return par.to_physical(u), (par.to_physical(u + h) - par.to_physical(u - h)) / (2 * h)
+    return par.to_physical(u), fd_slope(par.to_physical, u)
 
 
 def _covariances(jtj: np.ndarray, redchi: np.ndarray):
     """Per trial (stacked, finite inputs): column scale, condition number of the scaled
     ``J^T J``, covariance ``redchi pinv(J^T J)``, standard deviations, correlations."""
     scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
-    ev = np.linalg.eigvalsh(jtj / (scale[:, :, None] * scale[:, None, :]))
-    cond = np.where(ev[:, 0] > 0, ev[:, -1] / np.where(ev[:, 0] > 0, ev[:, 0], 1.0), np.inf)
+    cond = scaled_condition(jtj)
     cov = redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
     var = np.einsum("nii->ni", cov)
     sd = np.sqrt(np.clip(var, 0.0, None))

@@ -37,6 +37,7 @@ from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import noise_estimate
+from frictionfit.fit._numerics import fd_slope, pad_rows
 from frictionfit.models import get_model
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import (
@@ -98,9 +99,7 @@ def _laplace_summary(model, mode, cov):
         quant[par.name] = np.array([float(par.to_physical(np.float64(mode[j] + norm.ppf(q)
                                                                      * sd_u[j])))
                                     for q in QUANTILES.values()])
-        h = 1e-6
-        slope = (float(par.to_physical(np.float64(mode[j] + h)))
-                 - float(par.to_physical(np.float64(mode[j] - h)))) / (2 * h)
+        slope = float(fd_slope(par.to_physical, np.float64(mode[j])))
         sd[par.name] = abs(slope) * sd_u[j]
     return quant, sd
 
@@ -137,10 +136,8 @@ def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
 
     def chunk(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
         n = U.shape[0]
-        size = max(32, 1 << (n - 1).bit_length())
-        U = np.concatenate([U, np.repeat(U[:1], size - n, axis=0)])
-        idx = np.concatenate([idx, np.repeat(idx[:1], size - n)])
-        return np.asarray(f(U, idx, data.t, *data.arrays()))[:n]
+        rows = pad_rows(np.arange(n), max(32, 1 << (n - 1).bit_length()))
+        return np.asarray(f(U[rows], idx[rows], data.t, *data.arrays()))[:n]
 
     def evaluate(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
         parts = max(-(-U.shape[0] // EVAL_CHUNK), min(workers, U.shape[0] // 64))
@@ -306,8 +303,7 @@ def _sample_group(model, fit, rows, t, y, mask, t_out, t_back, method, noise, nw
     # emcee runs in sampling coordinates (log values: see _logpost); the Laplace
     # Gaussian is carried there to first order (the pilot run corrects it).
     x_mode = to_sampling(model, mode[sel])
-    h = 1e-6
-    jac = (to_sampling(model, mode[sel] + h) - to_sampling(model, mode[sel] - h)) / (2 * h)
+    jac = fd_slope(lambda u: to_sampling(model, u), mode[sel])
     covs = covs * jac[:, :, None] * jac[:, None, :]
     backends = None
     if chains_path is not None:

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.fit._noise import ar1_innovations
+from frictionfit.fit._numerics import scaled_condition, scaled_pinv
 from frictionfit.models import ContactModel
 from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, TrialData, logp_rows
 
@@ -63,12 +64,6 @@ def _curvature(model: ContactModel):
     return jax.jit(jax.vmap(one, in_axes=(0, None, 0, 0, 0, 0, 0, 0, 0)))
 
 
-def _inverse(h: np.ndarray) -> np.ndarray:
-    """Covariance from a Hessian, scaled to unit diagonal first (pseudo-inverse)."""
-    d = np.sqrt(np.maximum(np.diag(h), 1e-300))
-    return np.linalg.pinv(h / np.outer(d, d), rcond=1e-12, hermitian=True) / np.outer(d, d)
-
-
 def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     """Posterior mode, covariance and scaled-Hessian condition number per trial.
 
@@ -92,7 +87,7 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     logp = logp_rows(model)
     idx = np.arange(u_hat.shape[0])
     h, g = (np.asarray(a) for a in curv(jnp.asarray(u_hat), data.t, *data.arrays()))
-    step = np.stack([-_inverse(hi) @ gi if np.all(np.isfinite(hi)) and np.all(np.isfinite(gi))
+    step = np.stack([-scaled_pinv(hi) @ gi if np.all(np.isfinite(hi)) and np.all(np.isfinite(gi))
                      else np.zeros_like(gi) for hi, gi in zip(h, g, strict=True)])
     cand = u_hat + step
     better = np.asarray(logp(cand, idx, data.t, *data.arrays())) > np.asarray(
@@ -103,10 +98,8 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     cond = np.full(h.shape[0], np.inf)
     for i, hi in enumerate(h):
         if np.all(np.isfinite(hi)):
-            d = np.sqrt(np.maximum(np.diag(hi), 1e-300))
-            ev = np.linalg.eigvalsh(hi / np.outer(d, d))
-            cond[i] = ev[-1] / ev[0] if ev[0] > 0 else np.inf
-            cov[i] = _inverse(hi)
+            cond[i] = scaled_condition(hi)
+            cov[i] = scaled_pinv(hi)
     return mode, cov, cond
 
 
