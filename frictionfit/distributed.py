@@ -20,16 +20,15 @@ distributed draws from the same posterior.
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from frictionfit.errors import FitError
 from frictionfit.fit import FitResult, fit_trials
+from frictionfit.fit.result import concat_results, take_trials
 
 __all__ = ["concat_results", "fit_distributed", "map_chunks", "partition", "posterior_distributed",
            "take_trials"]
@@ -112,62 +111,6 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
     finally:
         if owned:
             client.close()
-
-
-def _concat(values: list, name: str):
-    """Per-trial fields are concatenated; per-batch settings must agree across chunks."""
-    first = values[0]
-    if isinstance(first, np.ndarray):
-        return np.concatenate(values)
-    if isinstance(first, pd.DataFrame):
-        return pd.concat(values, ignore_index=True)
-    if isinstance(first, list):
-        return [row for part in values for row in part]
-    if isinstance(first, tuple):  # e.g. (t_out, t_back) per trial
-        return tuple(_concat(list(items), name) for items in zip(*values, strict=True))
-    if all(v == first for v in values):  # None, solver name, stroke, ...
-        return first
-    raise FitError(f"chunks disagree on the per-batch result field {name!r}: {values}")
-
-
-def concat_results(parts: Sequence, wall_s: float | None = None):
-    """One result from per-chunk results (``FitResult`` or ``Posterior``), rows in order.
-
-    Per-trial fields (arrays, lists, tables) are concatenated and per-batch
-    settings (solver, drive, ...) carried over; ``wall_s`` is the given wall time
-    of the whole call (s), or the sum over the chunks.
-    """
-    cls = type(parts[0])
-    merged = {f.name: _concat([getattr(p, f.name) for p in parts], f.name)
-              for f in dataclasses.fields(cls) if f.init and f.name != "wall_s"}
-    merged["wall_s"] = sum(p.wall_s for p in parts) if wall_s is None else wall_s
-    return cls(**merged)
-
-
-def _take(value, rows: np.ndarray, n_trials: int):
-    """Rows of a per-trial field (array, list, table, tuple of them); other values unchanged."""
-    if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == n_trials:
-        return value[rows]
-    if isinstance(value, list) and len(value) == n_trials:
-        return [value[i] for i in rows]
-    if isinstance(value, pd.DataFrame) and len(value) == n_trials:
-        return value.iloc[rows].reset_index(drop=True)
-    if isinstance(value, tuple):
-        return tuple(_take(v, rows, n_trials) for v in value)
-    return value
-
-
-def take_trials(result: FitResult, rows) -> FitResult:
-    """The trials ``rows`` (indices or a slice) of a :class:`FitResult`; ``concat_results`` undone.
-
-    ``wall_s`` is shared out in proportion to the trials kept.
-    """
-    n = result.n_trials
-    idx = np.arange(n)[rows] if isinstance(rows, slice) else np.asarray(rows, dtype=int)
-    kept = {f.name: _take(getattr(result, f.name), idx, n)
-            for f in dataclasses.fields(FitResult) if f.init}
-    kept["wall_s"] = result.wall_s * idx.size / max(n, 1)
-    return FitResult(**kept)
 
 
 def _per_trial(value, n_trials: int) -> np.ndarray:

@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.distributed import take_trials
 from frictionfit.errors import Status
 from frictionfit.fit import FitResult, fit_trials
+from frictionfit.fit.result import take_trials
 from frictionfit.models import get_model
 from frictionfit.simulation.hard_cases import HardCase, hard_cases, truth_unconstrained
 

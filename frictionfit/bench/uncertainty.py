@@ -38,6 +38,7 @@ import numpy as np
 
 from frictionfit.bench._timing import alternate, machine_info, timed
 from frictionfit.fit import fit_trials
+from frictionfit.fit.result import concat_results, take_trials
 from frictionfit.models import PARAMS, get_model
 from frictionfit.simulation.trials import TRUTH_RANGES, simulate_trials
 from frictionfit.uncertainty import sample_posterior
@@ -71,14 +72,11 @@ def _posterior(ts, fit, method: str, seed: int, **kw):
 
 def _one_by_one(ts, fit, seed: int, **kw) -> SimpleNamespace:
     """emcee one trial at a time (no lockstep batching across trials), for comparison."""
-    per_trial = ("model", "values", "stderr", "flags", "u")
-    arrays = ("status", "chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps")
     posts = []
     for i in range(fit.n_trials):
-        sub = replace(fit, bic_table=None, **{f: [getattr(fit, f)[i]] for f in per_trial},
-                      **{f: getattr(fit, f)[i:i + 1] for f in arrays})
-        posts.append(sample_posterior(sub, ts.y[i:i + 1], ts.t, (ts.t_out, ts.t_back),
-                                      method="emcee", seed=seed + i, **kw))
+        posts.append(sample_posterior(take_trials(fit, [i]), ts.y[i:i + 1], ts.t,
+                                      (ts.t_out, ts.t_back), method="emcee", seed=seed + i,
+                                      **kw))
     return SimpleNamespace(**{k: [getattr(p, k)[0] for p in posts]
                               for k in ("quantiles", "sd", "converged", "method", "tau",
                                         "chains")})
@@ -223,7 +221,7 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
             bts, bfit, "emcee", seed + a, max_steps=cap))
         batch_s.append(sec / (b - a))
         mc_parts.append(part)
-    mc = _concat(mc_parts)
+    mc = concat_results(mc_parts)
     cov_lap, cov_mc = coverage(lap, cal_ts.truth), coverage(mc, sub_ts.truth)
     # Credible intervals are calibrated for truths drawn from the prior. The default ramp
     # prior (lab-wide, log sd 0.3) is wider than the simulator's 0.10-0.15 s, so the
@@ -285,24 +283,10 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
 
 def _subset(ts, fit, a: int, b: int):
     """Trials ``a:b`` of a trial set and its fit."""
-    per_trial = ("model", "values", "stderr", "flags", "u")
-    arrays = ("status", "chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps")
-    sub_fit = replace(fit, bic_table=None, **{f: list(getattr(fit, f)[a:b]) for f in per_trial},
-                      **{f: getattr(fit, f)[a:b] for f in arrays})
+    sub_fit = take_trials(fit, slice(a, b))
     sub_ts = replace(ts, y=ts.y[a:b], direction=ts.direction[a:b],
                      truth={k: v[a:b] for k, v in ts.truth.items()}, noise_sd=ts.noise_sd[a:b])
     return sub_ts, sub_fit
-
-
-def _concat(posts):
-    """One Posterior from several (trials in order)."""
-    from frictionfit.uncertainty import Posterior
-
-    fields = ("model", "method", "reason", "quantiles", "sd", "tau", "ess", "chains")
-    return Posterior(**{f: [x for p in posts for x in getattr(p, f)] for f in fields},
-                     converged=np.concatenate([p.converged for p in posts]),
-                     acceptance=np.concatenate([p.acceptance for p in posts]),
-                     wall_s=float(sum(p.wall_s for p in posts)))
 
 
 #: Law parameters used as material features (the drive's delay/ramp and the offset are not).

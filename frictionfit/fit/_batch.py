@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import jax
 import numpy as np
@@ -20,6 +21,7 @@ from frictionfit.fit._guess import (
     trial_keys,
 )
 from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
+from frictionfit.fit._numerics import pad_rows
 from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
 from frictionfit.fit._problem import jacobian_fn, noise_scale, normal_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
@@ -41,37 +43,84 @@ def _at_optimum(model, free, u, data, chunk):
     resid, jtj = [], []
     for start in range(0, n, chunk):
         idx = np.arange(start, min(start + chunk, n))
-        rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
+        rows = pad_rows(idx, chunk)
         r, a = fn(u[rows][:, list(free)], jax.tree_util.tree_map(lambda x, r=rows: x[r], data))
         resid.append(np.asarray(r)[: idx.size])
         jtj.append(np.asarray(a)[: idx.size])
     return np.concatenate(resid), np.concatenate(jtj)
 
 
-def _solve(model, free, starts, data, opts):
+@dataclass(frozen=True)
+class SolverSettings:
+    """How each member is solved: solver name, its tolerances, step budget and pools."""
+
+    name: str
+    lm: LMConfig  # the batched LM's tolerances and step budget (``name == "lm"``)
+    rtol: float  # the optimistix solvers' tolerances
+    atol: float
+    max_steps: int
+    steps_per_round: int
+    chunk_size: int
+    threads: int
+
+
+@dataclass(frozen=True, eq=False)
+class Batch:
+    """The arrays every member's fit shares, built once per batch.
+
+    ``data`` is the per-trial problem tuple of :mod:`frictionfit.fit._problem`
+    without ``base`` and ``noise``; ``guess_times`` the command times (s) the
+    starting guesses use; ``dt`` the sample interval (s); ``noise`` the noise sd (N).
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    mask: np.ndarray
+    data: tuple
+    direction: np.ndarray
+    drive_input: object
+    guess_times: tuple
+    dt: float
+    saturated: np.ndarray
+    keys: np.ndarray
+    noise: np.ndarray
+
+
+@dataclass(frozen=True)
+class MemberSettings:
+    """What a member's fit holds fixed (physical values) or tied, and its starts."""
+
+    drive: str
+    stroke_mm: float
+    priors: Mapping | None
+    n_starts: int
+    seed: int
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    tied: tuple[str, ...] = ()
+
+
+def _solve(model, free, starts, data, solve: SolverSettings):
     """Run the chosen solver from every start; keep each trial's lowest-cost optimum."""
     n_starts, n, _ = starts.shape
     u_all = starts.reshape(n_starts * n, -1)
     data_all = jax.tree_util.tree_map(lambda a: np.concatenate([a] * n_starts), data)
     cols = list(free)
-    if opts["solver"] == "lm":
-        cfg = LMConfig(ftol=opts["ftol"], xtol=opts["rtol"], gtol=opts["gtol"],
-                       lambda0=opts["lambda0"], max_steps=opts["max_steps"])
+    if solve.name == "lm":
         # a bar on a terminal only, for batches long enough to wait for
         with tqdm(total=len(u_all), desc=f"fitting {model.name}", unit="trial", leave=False,
                   disable=None if len(u_all) >= PROGRESS_MIN_TRIALS else True) as bar:
             u_free, code, steps = solve_pool(normal_fn(model, free), u_all[:, cols], data_all,
-                                             cfg, opts["chunk_size"], threads=opts["threads"],
+                                             solve.lm, solve.chunk_size, threads=solve.threads,
                                              progress=bar.update)
         converged, nonfinite = code == CONVERGED, code == NONFINITE
     else:
         u_free, converged, steps = solve_rounds(
-            model, free, u_all[:, cols], data_all, opts["solver"], opts["rtol"], opts["atol"],
-            opts["max_steps"], opts["steps_per_round"], opts["chunk_size"])
+            model, free, u_all[:, cols], data_all, solve.name, solve.rtol, solve.atol,
+            solve.max_steps, solve.steps_per_round, solve.chunk_size)
         nonfinite = ~np.all(np.isfinite(u_free), axis=1)
     u_all = u_all.copy()
     u_all[:, cols] = u_free
-    resid, jtj = _at_optimum(model, free, u_all, data_all, opts["chunk_size"])
+    resid, jtj = _at_optimum(model, free, u_all, data_all, solve.chunk_size)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is NONFINITE, not a crash
         cost = np.where(nonfinite, np.inf, np.nan_to_num(np.sum(resid**2, axis=1), nan=np.inf))
     best = np.argmin(cost.reshape(n_starts, n), axis=0) * n + np.arange(n)
@@ -79,34 +128,42 @@ def _solve(model, free, starts, data, opts):
             resid[best], jtj[best])
 
 
-def _fit_member(model, t_mask, data, u_start, fixed, opts, extra_starts=None):
+def _starts(model, base, free, batch: Batch, how: MemberSettings, extra_starts):
+    """Starting points ``(k, n_trials, n_params)``: the data-driven ones, then ``extra_starts``
+    with the held parameters at their ``base`` values."""
+    starts = multi_starts(model, base, how.n_starts, how.seed, keys=batch.keys)
+    if extra_starts is None:
+        return starts
+    extra = np.array(extra_starts, dtype=np.float64)
+    held = [j for j in range(model.n_params) if j not in free]
+    extra[:, :, held] = base[None][:, :, held]
+    return np.concatenate([starts, extra])
+
+
+def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: SolverSettings,
+                extra_starts=None):
     """Fit one member: multi-start solve, statistics; returns a dict of per-trial arrays.
 
     ``extra_starts`` (k, n_trials, n_params): further starting points (e.g. the
     smaller family member's optimum), tried besides the data-driven ones.
     """
-    names = model.param_names
-    free = tuple(j for j, n in enumerate(names) if n not in fixed)
+    names, t_mask = model.param_names, batch.mask
+    free = tuple(j for j, n in enumerate(names) if n not in how.fixed)
     base = u_start.copy()
-    for name, value in fixed.items():
+    for name, value in how.fixed.items():
         if name in names:
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
-    data = (*data, base, opts["noise"])
-    starts = multi_starts(model, base, opts["n_starts"], opts["seed"], keys=opts["keys"])
-    if extra_starts is not None:
-        extra = np.array(extra_starts, dtype=np.float64)
-        held = [j for j in range(len(names)) if j not in free]
-        extra[:, :, held] = base[None][:, :, held]
-        starts = np.concatenate([starts, extra])
-    u, converged, nonfinite, steps, resid, jtj = _solve(model, free, starts, data, opts)
+    starts = _starts(model, base, free, batch, how, extra_starts)
+    u, converged, nonfinite, steps, resid, jtj = _solve(
+        model, free, starts, (*batch.data, base, batch.noise), solve)
     stats = statistics(model, u, resid, jtj, t_mask, free,
-                       [n for n in fixed if n in names and n not in opts["tied"]])
-    if opts["drive"] == "events":
-        flag_fast_loading(stats["flags"], stats["values"], opts["dt"], opts["stroke_mm"])
+                       [n for n in how.fixed if n in names and n not in how.tied])
+    if how.drive == "events":
+        flag_fast_loading(stats["flags"], stats["values"], batch.dt, how.stroke_mm)
     status = np.array([
         Status.NONFINITE if nonfinite[i] and t_mask[i].sum() >= 3 * len(free)
         else status_of(len(free), converged[i], u[i], stats["chi2"][i], stats["cond"][i],
-                       t_mask[i], saturated=opts["saturated"][i])
+                       t_mask[i], saturated=batch.saturated[i])
         for i in range(u.shape[0])], dtype=np.int64)
     for i in np.flatnonzero(status == Status.INSUFFICIENT_DATA):  # no fit: no numbers
         stats["values"][i] = {k: np.nan for k in stats["values"][i]}
@@ -135,29 +192,12 @@ def _tie(fit, model, tie, groups):
 
 
 def fit_trials(
-    y,
-    t,
-    drive_input,
-    *,
-    model: str = "auto",
-    direction=None,
-    drive: str = "events",
-    solver: str | BatchedLevenbergMarquardt = "lm",
-    max_steps: int = 100,
-    steps_per_round: int = 40,
-    chunk_size: int = 32,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
-    ftol: float = 1e-6,
-    u0=None,
-    n_starts: int = 1,
-    seed: int = 0,
-    fix: Mapping[str, float] | None = None,
-    tie: Sequence[str] = (),
-    groups=None,
-    stroke_mm: float = 1.0,
-    priors: Mapping[str, tuple[float, float] | None] | None = None,
-    threads: int | None = None,
+    y, t, drive_input, *, model: str = "auto", direction=None, drive: str = "events",
+    solver: str | BatchedLevenbergMarquardt = "lm", max_steps: int = 100,
+    steps_per_round: int = 40, chunk_size: int = 32, rtol: float = 1e-8, atol: float = 1e-8,
+    ftol: float = 1e-6, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
+    fix: Mapping[str, float] | None = None, tie: Sequence[str] = (), groups=None,
+    stroke_mm: float = 1.0, priors: Mapping[str, tuple[float, float] | None] | None = None,
 ) -> FitResult:
     """Fit a contact model to every trial of a batch.
 
@@ -168,68 +208,48 @@ def fit_trials(
     t : array (n_samples,)
         Uniform sample times, s (shared by the batch).
     drive_input : tuple or array
-        ``(t_out, t_back)`` command times in s (scalars or ``(n_trials,)``) for
-        ``drive="events"``; the displacement in mm, ``(n_trials, n_samples)``, for
-        ``drive="given"``.
+        ``(t_out, t_back)``: command times, s (scalars or per trial), ``drive="events"``;
+        or the displacement, mm ``(n_trials, n_samples)``, ``drive="given"``.
     model : str, default "auto"
-        A family member's name, or ``"auto"``: fit every member and keep the
-        smallest whose BIC is not beaten by more than ``BIC_TIE``.
+        A family member, or ``"auto"``: fit all, keep the smallest within ``BIC_TIE``
+        of the best BIC.
     direction : array (n_trials,), optional
         +1/-1 per trial; estimated from the out stroke when omitted.
     solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or BatchedLevenbergMarquardt
-        ``"lm"``: frictionfit's batched Levenberg-Marquardt (lineax Cholesky solves,
-        per-trial damping and Marquardt scaling, slot refilling; the fastest);
-        the others are the optimistix solvers, vmapped in rounds. A
-        :class:`~frictionfit.fit.BatchedLevenbergMarquardt` object runs ``"lm"`` with its
-        own tolerances (``rtol``, ``atol``, ``ftol``, ``lambda0``; ``rtol``/``ftol`` here
-        are then ignored).
+        ``"lm"``: frictionfit's batched Levenberg-Marquardt (the fastest), also given as
+        a configured object (its tolerances replace ``rtol``/``ftol``); the others are
+        the optimistix solvers, vmapped in rounds.
     max_steps, steps_per_round, chunk_size : int
-        Step budget per trial; steps per round (optimistix solvers); trials per
-        vmapped chunk (the LM's pool size). Pools of 32 were the fastest of 16-256
-        on this 2-core machine (512 relaxation trials, 2 threads, median of 3:
-        121-124 trials/s at 32, 117 at 64, 97 at 128, 63 at 256; stick_slip 89 vs
-        72 at 128; ``model="auto"`` 9.3 vs 8.1): a small pool's state stays in the
-        cache, and fewer slots idle while the slowest trials of a pool finish.
+        Step budget per trial; steps per round (optimistix solvers); trials per vmapped
+        chunk (the LM's pool; 32 was the fastest, see ``docs/decisions.md``).
     rtol, atol, ftol : float
-        Step tolerances (``rtol`` is the LM's ``xtol``); ``ftol``: relative cost
-        decrease below which the LM stops.
+        Step tolerances (``rtol``: the LM's ``xtol``); relative cost decrease (``ftol``).
     u0 : array (n_trials, n_params), optional
         Unconstrained starting points (a single named model only).
     n_starts, seed : int
-        Starting points per trial: the data-driven guess plus ``n_starts - 1`` seeded
-        jitters of it; the lowest-cost optimum is kept. Each trial's jitter is drawn
-        from ``(seed, a key of its own samples)``, so a trial's result does not depend
-        on which other trials share its batch.
+        The data-driven guess plus ``n_starts - 1`` jitters seeded per trial (by its own
+        samples: results do not depend on the batch); the lowest-cost optimum is kept.
     fix : mapping name -> physical value, optional
         Parameters held at a known value (flagged "fixed", stderr 0).
     tie, groups : sequence of str, array (n_trials,)
-        Parameters shared by the trials of a group (e.g. the channels of one
-        measurement). Simplest honest version, not a joint fit: every trial is
-        fitted freely, the group's inverse-variance mean of each tied parameter
-        is then fixed and the other parameters refitted; the tied parameter
-        reports that mean and its combined stderr, flagged "tied".
+        Parameters shared by a group's trials: after a free fit each is fixed at its
+        group's inverse-variance mean (reported with its combined stderr, flagged
+        "tied") and the rest refitted.
     stroke_mm : float
         The rig's finger stroke (mm) for ``drive="events"``; stiffness is per mm of it.
     priors : mapping name -> (centre, sd) or None, optional
-        Normal priors on parameters' sampling coordinates (for a ``loglogit``
-        parameter: median in its unit and sd of the natural log), replacing the
-        defaults (:data:`~frictionfit.models.family.RAMP_PRIOR` on ``ramp``);
-        ``None`` for a name makes it flat over its bounds. The fit is then the MAP
-        estimate; chi-square, AIC and BIC are of the data alone.
+        Normal priors on sampling coordinates (``loglogit``: median in its unit, sd of
+        the log) replacing the defaults (``RAMP_PRIOR`` on ``ramp``); ``None``: flat.
+        The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
-        Host threads of the ``"lm"`` solver, each with its own pool of trials (only
-        for batches of at least two full pools); results do not depend on it, bit
-        for bit. Default: the cores this process may use. On this 2-core machine,
-        quiet, 2 threads solved 128 relaxation trials 1.3x faster than one
-        (``frictionfit bench fit``, alternated, median of 3); on a heavily shared
-        machine they were slower.
+        Host threads of the ``"lm"`` solver, a pool each (results do not depend on
+        it, bit for bit). Default: the cores this process may use.
 
     Returns
     -------
     FitResult
-        One row per trial, with a Status each: a failed trial never sinks the batch.
-        A trial with a run of ``SATURATED_RUN`` samples at its extreme value (a
-        clipped channel) is fitted without them and gets ``Status.SATURATED``.
+        One row per trial, with a Status each (a failed trial never sinks the batch;
+        a clipped run of samples is left out, ``Status.SATURATED``).
 
     Examples
     --------
@@ -240,20 +260,55 @@ def fit_trials(
     ['CONVERGED', 'CONVERGED']
     """
     start = time.perf_counter()
+    y, t = _samples(y, t)
+    solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round,
+                             chunk_size, threads)
+    dt = _sample_interval(t)
+    how = _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
+    batch = _prepare(y, t, dt, drive_input, drive, direction)
+    members = _members(model, how)
+    u0 = None if model == "auto" else u0
+    fits, inits = _fit_family(members, batch, solve, how, u0, tie, groups)
+    return _assemble(fits, inits, batch, how, solve.name, model == "auto", start)
+
+
+def _samples(y, t) -> tuple[np.ndarray, np.ndarray]:
+    """``y (n_trials, n_samples)`` and ``t (n_samples,)`` as float64, checked to agree."""
     y = np.atleast_2d(np.asarray(y, dtype=np.float64))
     t = np.asarray(t, dtype=np.float64)
     if y.shape[1] != t.size:
         raise FitError(f"y has {y.shape[1]} samples per trial but t has {t.size}")
+    return y, t
+
+
+def _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
+                     threads) -> SolverSettings:
+    """The solver's name and settings; a BatchedLevenbergMarquardt brings its tolerances."""
     lm = BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol)
     if isinstance(solver, BatchedLevenbergMarquardt):
         lm, solver = solver, "lm"
     if solver not in SOLVERS:
         raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS} or a "
                        "BatchedLevenbergMarquardt")
+    cfg = LMConfig(ftol=lm.ftol, xtol=lm.rtol, gtol=lm.atol, lambda0=lm.lambda0,
+                   max_steps=max_steps)
+    return SolverSettings(
+        name=solver, lm=cfg, rtol=lm.rtol, atol=atol, max_steps=max_steps,
+        steps_per_round=steps_per_round, chunk_size=chunk_size,
+        threads=available_cores() if threads is None else max(int(threads), 1))
+
+
+def _sample_interval(t: np.ndarray) -> float:
+    """The sample interval of uniform times ``t`` (s); 1 for a single sample."""
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
     if t.size > 2 and not np.allclose(np.diff(t), dt, rtol=1e-6, atol=1e-12):
         raise FitError("t must be uniformly sampled (re-grid missing samples as NaN)")
-    n_trials = y.shape[0]
+    return dt
+
+
+def _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie,
+                     groups) -> MemberSettings:
+    """The settings of every member's fit; unknown fixed or tied names are refused."""
     fix = dict(fix or {})
     unknown = [n for n in [*fix, *tie] if n not in PARAMS]
     if unknown:
@@ -261,6 +316,13 @@ def fit_trials(
                        f"parameters are {list(PARAMS)}")
     if tie and groups is None:
         raise FitError("tie needs groups: one group label per trial (e.g. the measurement id)")
+    return MemberSettings(drive=drive, stroke_mm=stroke_mm, priors=priors,
+                          n_starts=max(int(n_starts), 1), seed=seed, fixed=fix)
+
+
+def _prepare(y, t, dt, drive_input, drive, direction) -> Batch:
+    """The batch's arrays: masked force, drive per trial, direction, noise scale."""
+    n_trials = y.shape[0]
     # Samples held at a clipping extreme are censored, not measured: left out (SATURATED).
     clipped = saturated_samples(y)
     mask = FitResult.sample_mask(y)
@@ -277,73 +339,93 @@ def fit_trials(
         direction = direction_of(t, y, *guess_times)
     direction = np.asarray(direction, dtype=np.float64)
     data = (y_clean, mask, drive_input, direction, np.full(n_trials, t[0]), np.full(n_trials, dt))
-    opts = dict(solver=solver, rtol=lm.rtol, atol=atol, ftol=lm.ftol, gtol=lm.atol,
-                lambda0=lm.lambda0, max_steps=max_steps,
-                steps_per_round=steps_per_round, chunk_size=chunk_size,
-                n_starts=max(int(n_starts), 1), seed=seed, tied=(), keys=trial_keys(y),
-                saturated=clipped.any(axis=1), drive=drive, dt=dt, stroke_mm=stroke_mm,
-                noise=noise_scale(y_clean, mask),
-                threads=available_cores() if threads is None else max(int(threads), 1))
+    return Batch(t=t, y=y, mask=mask, data=data, direction=direction, drive_input=drive_input,
+                 guess_times=guess_times, dt=dt, saturated=clipped.any(axis=1),
+                 keys=trial_keys(y), noise=noise_scale(y_clean, mask))
+
+
+def _members(model: str, how: MemberSettings) -> list:
+    """The family members to fit: all of them for ``"auto"``, else the one named."""
     names = [m.name for m in FAMILY] if model == "auto" else [model]
     try:
-        members = [get_model(n, drive=drive, stroke_mm=stroke_mm, priors=priors) for n in names]
+        return [get_model(n, drive=how.drive, stroke_mm=how.stroke_mm, priors=how.priors)
+                for n in names]
     except ValueError as exc:
         raise FitError(str(exc)) from None
-    fits, previous, inits = {}, None, {}
+
+
+def _fit_family(members, batch: Batch, solve: SolverSettings, how: MemberSettings, u0, tie,
+                groups):
+    """Every member's fit (``{name: per-trial dict}``) and starting points (physical)."""
+    fits, inits, previous = {}, {}, None
     for member in members:
-        start_u = np.array(u0 if (u0 is not None and model != "auto") else initial_guess(
-            member, t, y, *guess_times, direction), dtype=np.float64)
+        start_u = np.array(u0 if u0 is not None else initial_guess(
+            member, batch.t, batch.y, *batch.guess_times, batch.direction), dtype=np.float64)
         inits[member.name] = [{k: float(v) for k, v in row.items()}
                               for row in _rows_of(member.physical(start_u))]
-        fit = _fit_member(member, mask, data, start_u, fix, opts,
+        fit = _fit_member(member, batch, start_u, how, solve,
                           _warm_start(member, start_u, previous))
         if tie:
-            means, errs = _tie(fit, member, tie, np.asarray(groups))
-            refit = _fit_member(member, mask, data, fit["u"], {**fix, **means},
-                                dict(opts, tied=tuple(means)))
-            for i in range(n_trials):
-                for name in means:
-                    refit["stderr"][i][name] = float(errs[name][i])
-                # Holding a tied parameter at its group mean hides the trade-offs it had:
-                # what the free fit could not identify stays flagged.
-                for name, flag in fit["flags"][i].items():
-                    refit["flags"][i].setdefault(name, flag)
-            fit = refit
+            fit = _refit_tied(fit, member, batch, how, solve, tie, np.asarray(groups))
         fits[member.name] = fit
         previous = (member, fit["u"])
-    if model == "auto" and not tie:
-        # Backward pass: a smaller member also starts from the bigger one's optimum
-        # (extra effects dropped), so a smaller member stuck in a poor local minimum
-        # is not out-scored by a bigger one that found the right basin.
-        for small, big in reversed(list(zip(members[:-1], members[1:], strict=True))):
-            back = _warm_start(small, fits[small.name]["u"], (big, fits[big.name]["u"]))
-            fits[small.name] = _fit_member(small, mask, data, fits[small.name]["u"], fix,
-                                           opts, back)
-    bic = pd.DataFrame({n: fits[n]["bic"] for n in names})
+    if not tie:  # with one member there is no smaller one to revisit
+        _backward_pass(fits, members, batch, how, solve)
+    return fits, inits
+
+
+def _refit_tied(fit, member, batch: Batch, how: MemberSettings, solve: SolverSettings, tie,
+                groups):
+    """The fit refitted with each tied parameter at its group's inverse-variance mean."""
+    means, errs = _tie(fit, member, tie, groups)
+    refit = _fit_member(member, batch, fit["u"],
+                        replace(how, fixed={**how.fixed, **means}, tied=tuple(means)), solve)
+    for i in range(batch.y.shape[0]):
+        for name in means:
+            refit["stderr"][i][name] = float(errs[name][i])
+        # Holding a tied parameter at its group mean hides the trade-offs it had:
+        # what the free fit could not identify stays flagged.
+        for name, flag in fit["flags"][i].items():
+            refit["flags"][i].setdefault(name, flag)
+    return refit
+
+
+def _backward_pass(fits, members, batch: Batch, how: MemberSettings, solve: SolverSettings):
+    """Refit each smaller member (in place) also from the next bigger one's optimum.
+
+    Extra effects dropped, so a smaller member stuck in a poor local minimum is not
+    out-scored by a bigger one that found the right basin.
+    """
+    for small, big in reversed(list(zip(members[:-1], members[1:], strict=True))):
+        back = _warm_start(small, fits[small.name]["u"], (big, fits[big.name]["u"]))
+        fits[small.name] = _fit_member(small, batch, fits[small.name]["u"], how, solve, back)
+
+
+def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto: bool,
+              start: float) -> FitResult:
+    """Per trial, the member the BIC chooses, with its statistics, as a FitResult."""
+    bic = pd.DataFrame({n: fit["bic"] for n, fit in fits.items()})
     chosen = choose(bic)
     rows = [fits[name] for name in chosen]
     with np.errstate(over="ignore", invalid="ignore"):
         total_ss = np.array([np.sum((yi[m] - yi[m].mean()) ** 2) if m.any() else np.nan
-                             for yi, m in zip(y, mask, strict=True)])
+                             for yi, m in zip(batch.y, batch.mask, strict=True)])
         chi2 = np.array([r["chi2"][i] for i, r in enumerate(rows)])
         # A constant (dead) channel has no variance to explain: R^2 is undefined (NaN).
         r2 = 1.0 - np.divide(chi2, total_ss, out=np.full_like(chi2, np.nan),
                              where=total_ss > 0)
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
             for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
+    per_trial = {k: [r[k][i] for i, r in enumerate(rows)]
+                 for k in ("values", "stderr", "flags", "u", "correl")}
     return FitResult(
-        model=list(chosen), values=[r["values"][i] for i, r in enumerate(rows)],
-        stderr=[r["stderr"][i] for i, r in enumerate(rows)],
-        flags=[r["flags"][i] for i, r in enumerate(rows)], status=pick["status"],
-        chi2=pick["chi2"], redchi=pick["redchi"], aic=pick["aic"], bic=pick["bic"],
-        r2=r2, cond=pick["cond"], n_steps=pick["steps"],
-        u=[r["u"][i] for i, r in enumerate(rows)],
-        init=[inits[name][i] for i, name in enumerate(chosen)],
-        correl=[r["correl"][i] for i, r in enumerate(rows)],
-        bic_table=bic if model == "auto" else None, wall_s=time.perf_counter() - start,
-        solver=solver, n_starts=opts["n_starts"], direction=direction,
-        drive_input=drive_input, drive=drive, stroke_mm=stroke_mm,
-        priors=dict(priors) if priors is not None else None,
+        model=list(chosen), status=pick["status"], chi2=pick["chi2"], redchi=pick["redchi"],
+        aic=pick["aic"], bic=pick["bic"], r2=r2, cond=pick["cond"], n_steps=pick["steps"],
+        init=[inits[name][i] for i, name in enumerate(chosen)], **per_trial,
+        bic_table=bic if auto else None, wall_s=time.perf_counter() - start,
+        solver=solver, n_starts=how.n_starts, direction=batch.direction,
+        drive_input=batch.drive_input, drive=how.drive, stroke_mm=how.stroke_mm,
+        priors=dict(how.priors) if how.priors is not None else None,
     )
 
 

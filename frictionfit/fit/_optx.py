@@ -19,6 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from frictionfit.errors import FitError
+from frictionfit.fit._numerics import pad_rows
 from frictionfit.fit._problem import residual_fn
 from frictionfit.models import ContactModel
 
@@ -53,11 +54,6 @@ def _chunk_solver(model: ContactModel, free: tuple[int, ...], solver: str, rtol:
     return eqx.filter_jit(jax.vmap(one))
 
 
-def _padded(idx: np.ndarray, chunk_size: int) -> np.ndarray:
-    """``idx`` padded to ``chunk_size`` by repeating its last entry (one compiled shape)."""
-    return np.concatenate([idx, np.full(chunk_size - idx.size, idx[-1])])
-
-
 def solve_rounds(model: ContactModel, free: tuple[int, ...], u0: np.ndarray, data, solver: str,
                  rtol: float, atol: float, max_steps: int, steps_per_round: int,
                  chunk_size: int):
@@ -73,7 +69,7 @@ def solve_rounds(model: ContactModel, free: tuple[int, ...], u0: np.ndarray, dat
     while active.size:
         for start in range(0, active.size, chunk_size):
             idx = active[start:start + chunk_size]
-            rows = _padded(idx, chunk_size)
+            rows = pad_rows(idx, chunk_size)
             chunk = jax.tree_util.tree_map(lambda a, r=rows: jnp.asarray(a[r]), data)
             u_new, ok, nst = solve(jnp.asarray(u[rows]), chunk)
             u[idx] = np.asarray(u_new)[: idx.size]

@@ -33,6 +33,8 @@ import numpy as np
 import pandas as pd
 
 from frictionfit.errors import Status
+from frictionfit.fit._noise import RHO_MAX, ar1_deviance
+from frictionfit.fit._numerics import fd_slope, scaled_condition
 from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
@@ -54,17 +56,15 @@ GATE_SDS = 2.0
 
 def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Physical values and d(physical)/du (central difference of the transform)."""
-    h = 1e-6
     u = np.asarray(u, dtype=np.float64)
-    return par.to_physical(u), (par.to_physical(u + h) - par.to_physical(u - h)) / (2 * h)
+    return par.to_physical(u), fd_slope(par.to_physical, u)
 
 
 def _covariances(jtj: np.ndarray, redchi: np.ndarray):
     """Per trial (stacked, finite inputs): column scale, condition number of the scaled
     ``J^T J``, covariance ``redchi pinv(J^T J)``, standard deviations, correlations."""
     scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
-    ev = np.linalg.eigvalsh(jtj / (scale[:, :, None] * scale[:, None, :]))
-    cond = np.where(ev[:, 0] > 0, ev[:, -1] / np.where(ev[:, 0] > 0, ev[:, 0], 1.0), np.inf)
+    cond = scaled_condition(jtj)
     cov = redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
     var = np.einsum("nii->ni", cov)
     sd = np.sqrt(np.clip(var, 0.0, None))
@@ -121,33 +121,6 @@ def flag_fast_loading(flags, values, dt: float, stroke_mm: float) -> None:
         t_load = v["ramp"] / np.pi * np.arccos(1.0 - 2.0 * z / stroke_mm)
         if t_load < MIN_LOADING_SAMPLES * dt:
             f["k"] = f"loads within {t_load / dt:.1f} samples (a lower bound)"
-
-
-#: Bound on the AR(1) coefficient of the residuals (keeps ``log(1 - rho^2)`` finite).
-RHO_MAX = 0.99
-
-
-def ar1_deviance(resid, mask) -> np.ndarray:
-    """``-2 log L`` (constant dropped) of residuals under Gaussian AR(1) noise, per trial.
-
-    ``resid`` (n_trials, n_samples), zero where ``mask`` is False. The coefficient
-    is the lag-1 least-squares estimate over pairs of finite neighbours, clipped to
-    ``[-RHO_MAX, RHO_MAX]``; each contiguous run of finite samples starts a new
-    stationary segment (a gap of missing samples breaks the recurrence).
-    """
-    resid = np.where(mask, resid, 0.0)
-    n = mask.sum(axis=1).astype(np.float64)
-    pair = mask[:, 1:] & mask[:, :-1]
-    prev, cur = resid[:, :-1] * pair, resid[:, 1:] * pair
-    rho = np.sum(prev * cur, axis=1) / np.maximum(np.sum(prev**2, axis=1), 1e-300)
-    rho = np.clip(np.nan_to_num(rho), -RHO_MAX, RHO_MAX)
-    starts = mask.copy()
-    starts[:, 1:] &= ~mask[:, :-1]  # first finite sample of each run
-    lead = (1 - rho**2) * np.sum(np.where(starts, resid, 0.0) ** 2, axis=1)
-    sse = lead + np.sum((cur - rho[:, None] * prev) ** 2, axis=1)
-    g = starts.sum(axis=1)
-    return (n * np.log(np.maximum(sse / np.maximum(n, 1.0), 1e-300))
-            - g * np.log1p(-rho**2))
 
 
 def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from frictionfit.errors import Status
+from frictionfit.errors import FitError, Status
 from frictionfit.models import PARAMS
 
-__all__ = ["FitResult", "fit_report"]
+__all__ = ["FitResult", "concat_results", "fit_report", "take_trials"]
 
 
 @dataclass
@@ -183,3 +185,60 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
             mark = "  <-- chosen" if name == result.model[i] else ""
             lines.append(f"    {name:16s} {b:.6g}{mark}")
     return "\n".join(lines)
+
+
+def _concat(values: list, name: str):
+    """Per-trial fields are concatenated; per-batch settings must agree across chunks."""
+    first = values[0]
+    if isinstance(first, np.ndarray):
+        return np.concatenate(values)
+    if isinstance(first, pd.DataFrame):
+        return pd.concat(values, ignore_index=True)
+    if isinstance(first, list):
+        return [row for part in values for row in part]
+    if isinstance(first, tuple):  # e.g. (t_out, t_back) per trial
+        return tuple(_concat(list(items), name) for items in zip(*values, strict=True))
+    if all(v == first for v in values):  # None, solver name, stroke, ...
+        return first
+    raise FitError(f"parts disagree on the per-batch result field {name!r}: {values}")
+
+
+def concat_results(parts: Sequence, wall_s: float | None = None):
+    """One result from per-chunk results (``FitResult``, ``Posterior``), rows in order.
+
+    Per-trial fields (arrays, lists, tables) are concatenated and per-batch
+    settings (solver, drive, ...) carried over; ``wall_s`` is the given wall time
+    of the whole call (s), or the sum over the chunks.
+    """
+    cls = type(parts[0])
+    merged = {f.name: _concat([getattr(p, f.name) for p in parts], f.name)
+              for f in dataclasses.fields(cls) if f.init and f.name != "wall_s"}
+    merged["wall_s"] = sum(p.wall_s for p in parts) if wall_s is None else wall_s
+    return cls(**merged)
+
+
+def _take(value, rows: np.ndarray, n_trials: int):
+    """Rows of a per-trial field (array, list, table, tuple of them); other values unchanged."""
+    if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == n_trials:
+        return value[rows]
+    if isinstance(value, list) and len(value) == n_trials:
+        return [value[i] for i in rows]
+    if isinstance(value, pd.DataFrame) and len(value) == n_trials:
+        return value.iloc[rows].reset_index(drop=True)
+    if isinstance(value, tuple):
+        return tuple(_take(v, rows, n_trials) for v in value)
+    return value
+
+
+def take_trials(result, rows):
+    """The trials ``rows`` (indices or a slice) of a result (``FitResult``, ``Posterior``);
+    ``concat_results`` undone.
+
+    ``wall_s`` is shared out in proportion to the trials kept.
+    """
+    n = result.n_trials
+    idx = np.arange(n)[rows] if isinstance(rows, slice) else np.asarray(rows, dtype=int)
+    kept = {f.name: _take(getattr(result, f.name), idx, n)
+            for f in dataclasses.fields(result) if f.init}
+    kept["wall_s"] = result.wall_s * idx.size / max(n, 1)
+    return type(result)(**kept)

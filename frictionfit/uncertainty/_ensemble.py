@@ -242,6 +242,60 @@ def _save_chain(backend: emcee.backends.HDFBackend, tr: _Trial) -> None:
         g.attrs["iteration"] = len(chain)
 
 
+@dataclass(frozen=True)
+class _Rules:
+    """When a trial's kept chain stops (see :func:`run_lockstep`)."""
+
+    max_steps: int
+    check_every: int
+    min_tau_multiple: float
+    tau_rtol: float
+    min_acceptance: float
+
+
+def _pilot_stage(evaluate, running: list[_Trial], state: emcee.State, results: list,
+                 nwalkers: int, pilot_steps: int, stage: int):
+    """One adaptation stage: run, refit each trial's proposal; the state and trials left
+    (a trial whose refit fails gets its exception in ``results``)."""
+    state, sampler = _run(evaluate, running, nwalkers, _moves(running), state, pilot_steps)
+    keep = []
+    for j, (tr, block) in enumerate(zip(running, _by_trial(sampler.get_chain(), running),
+                                        strict=True)):
+        try:
+            tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
+        except Exception as exc:  # this trial's failure, not the batch's
+            results[tr.index] = exc
+            continue
+        tr.n_pilot += pilot_steps
+        keep.append(j)
+    return _keep(state, running, keep, nwalkers)
+
+
+def _kept_block(evaluate, running: list[_Trial], state: emcee.State, results: list,
+                nwalkers: int, rules: _Rules, backends: list | None):
+    """One block of the kept chains; the state and the trials still running (a trial
+    that stops gets its ChainResult, or its exception, in ``results``)."""
+    steps = min(rules.check_every, min(rules.max_steps - tr.n_steps for tr in running))
+    state, sampler = _run(evaluate, running, nwalkers, _moves(running, 0.8), state, steps)
+    blocks = zip(running, _by_trial(sampler.get_chain(), running),
+                 _by_trial(sampler.get_log_prob(), running),
+                 _by_trial(sampler.backend.accepted, running, axis=0), strict=True)
+    keep = []
+    for j, (tr, chain, log_prob, accepted) in enumerate(blocks):
+        try:
+            done = _extend(tr, chain, log_prob, accepted, rules.max_steps,
+                           rules.min_tau_multiple, rules.tau_rtol, rules.min_acceptance)
+            if done is not None and backends is not None:
+                _save_chain(backends[tr.index], tr)
+        except Exception as exc:  # this trial's failure, not the batch's
+            done = exc
+        if done is None:
+            keep.append(j)
+        else:
+            results[tr.index] = done
+    return _keep(state, running, keep, nwalkers)
+
+
 def run_lockstep(
     evaluate: Callable[[np.ndarray, np.ndarray], np.ndarray],
     means: np.ndarray,
@@ -297,46 +351,19 @@ def run_lockstep(
     coords = Proposals([tr.proposal for tr in running]).rvs(nwalkers, rng).reshape(-1, p)
     state = emcee.State(coords, random_state=rng.get_state())
     results: list[ChainResult | BaseException | None] = [None] * n
+    rules = _Rules(max_steps, check_every, min_tau_multiple, tau_rtol, min_acceptance)
     bar = tqdm(total=n, desc="emcee", unit="trial", leave=False, disable=None)
     try:
         for stage in range(pilot_stages):
             if not running:
                 break
-            state, sampler = _run(evaluate, running, nwalkers, _moves(running), state,
-                                  pilot_steps)
-            keep = []
-            for j, (tr, block) in enumerate(zip(running, _by_trial(sampler.get_chain(), running),
-                                                strict=True)):
-                try:
-                    tr.refit(block[pilot_steps // 3:] if stage == 0 else block)
-                except Exception as exc:  # this trial's failure, not the batch's
-                    results[tr.index] = exc
-                    continue
-                tr.n_pilot += pilot_steps
-                keep.append(j)
-            state, running = _keep(state, running, keep, nwalkers)
+            state, running = _pilot_stage(evaluate, running, state, results, nwalkers,
+                                          pilot_steps, stage)
         while running:
-            steps = min(check_every, min(max_steps - tr.n_steps for tr in running))
-            state, sampler = _run(evaluate, running, nwalkers, _moves(running, 0.8), state,
-                                  steps)
-            blocks = zip(running, _by_trial(sampler.get_chain(), running),
-                         _by_trial(sampler.get_log_prob(), running),
-                         _by_trial(sampler.backend.accepted, running, axis=0), strict=True)
-            keep = []
-            for j, (tr, chain, log_prob, accepted) in enumerate(blocks):
-                try:
-                    done = _extend(tr, chain, log_prob, accepted, max_steps, min_tau_multiple,
-                                   tau_rtol, min_acceptance)
-                    if done is not None and backends is not None:
-                        _save_chain(backends[tr.index], tr)
-                except Exception as exc:  # this trial's failure, not the batch's
-                    done = exc
-                if done is None:
-                    keep.append(j)
-                else:
-                    results[tr.index] = done
-            bar.update(len(running) - len(keep))
-            state, running = _keep(state, running, keep, nwalkers)
+            state, kept = _kept_block(evaluate, running, state, results, nwalkers, rules,
+                                      backends)
+            bar.update(len(running) - len(kept))
+            running = kept
     except Exception as exc:  # the shared evaluation failed: every running trial reports it
         for tr in running:
             results[tr.index] = exc

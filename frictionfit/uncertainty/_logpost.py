@@ -35,10 +35,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit._noise import ar1_log_likelihood
 from frictionfit.models import ContactModel
 
 __all__ = ["OFFSET_PRIOR_SD_N", "TrialData", "from_sampling", "log_prior", "logp_rows",
-           "noise_estimate", "sampling_bounds", "to_sampling"]
+           "sampling_bounds", "to_sampling"]
 
 #: Prior sd of a channel offset, N (sensor offsets are at most tens of N).
 OFFSET_PRIOR_SD_N = 100.0
@@ -91,16 +92,6 @@ def log_prior_sampling(model: ContactModel, x):
     return jnp.where(inside, gauss, -jnp.inf)
 
 
-def log_likelihood_ar1(resid, mask, sigma, rho):
-    """AR(1) Gaussian log-likelihood of residuals ``resid`` (N) where ``mask`` is True."""
-    prev_ok = jnp.concatenate([jnp.zeros(1, dtype=bool), mask[:-1]])
-    prev = jnp.concatenate([jnp.zeros(1, dtype=resid.dtype), resid[:-1]])
-    innov = jnp.where(prev_ok, resid - rho * prev, resid)
-    var = jnp.where(prev_ok, sigma**2 * (1.0 - rho**2), sigma**2)
-    terms = jnp.where(mask, innov**2 / var + jnp.log(var), 0.0)
-    return -0.5 * jnp.sum(terms)
-
-
 class TrialData:
     """The data of a batch of trials, stacked as arrays for :func:`logp_rows`.
 
@@ -135,7 +126,7 @@ def _one_logp(model: ContactModel, u, t, y, mask, t_out, t_back, direction, sigm
         prior = log_prior(model, u)
     pred = model.predict(u, t, (t_out, t_back), direction)
     resid = jnp.where(mask, pred - y, 0.0)
-    lp = log_likelihood_ar1(resid, mask, sigma, rho) + prior
+    lp = ar1_log_likelihood(resid, mask, sigma, rho) + prior
     return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
 
@@ -166,14 +157,3 @@ def residuals(model: ContactModel):
         return jnp.where(mask, model.predict(u, t, (t_out, t_back), direction) - y, 0.0)
 
     return jax.jit(jax.vmap(one, in_axes=(0, None, 0, 0, 0, 0, 0)))
-
-
-def noise_estimate(resid: np.ndarray, mask: np.ndarray, n_params: int):
-    """Marginal noise sd (N) and lag-1 autocorrelation per trial from LS residuals."""
-    n = mask.sum(axis=1)
-    r = np.where(mask, resid, 0.0)
-    ss = np.sum(r**2, axis=1)
-    sigma = np.sqrt(ss / np.maximum(n - n_params, 1))
-    pair = mask[:, 1:] & mask[:, :-1]
-    rho = np.sum(np.where(pair, r[:, 1:] * r[:, :-1], 0.0), axis=1) / np.maximum(ss, 1e-300)
-    return sigma, np.clip(rho, 0.0, 0.95)

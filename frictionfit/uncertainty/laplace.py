@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit._noise import ar1_innovations
+from frictionfit.fit._numerics import scaled_condition, scaled_pinv
 from frictionfit.models import ContactModel
 from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, TrialData, logp_rows
 
@@ -47,10 +49,8 @@ def _curvature(model: ContactModel):
 
     def whitened(u, t, y, mask, t_out, t_back, direction, sigma, rho):
         r = jnp.where(mask, model.predict(u, t, (t_out, t_back), direction) - y, 0.0)
-        prev_ok = jnp.concatenate([jnp.zeros(1, dtype=bool), mask[:-1]])
-        prev = jnp.concatenate([jnp.zeros(1, dtype=r.dtype), r[:-1]])
-        innov = jnp.where(prev_ok, r - rho * prev, r)
-        sd = jnp.where(prev_ok, sigma * jnp.sqrt(1.0 - rho**2), sigma)
+        innov, factor = ar1_innovations(r, mask, rho)
+        sd = sigma * jnp.sqrt(factor)
         # The model's Normal priors are residual rows of their own (Gauss-Newton too).
         return jnp.concatenate([jnp.where(mask, innov / sd, 0.0), model.prior_residuals(u)])
 
@@ -62,12 +62,6 @@ def _curvature(model: ContactModel):
         return jac.T @ jac + jnp.diag(h_prior), jac.T @ w + g_prior
 
     return jax.jit(jax.vmap(one, in_axes=(0, None, 0, 0, 0, 0, 0, 0, 0)))
-
-
-def _inverse(h: np.ndarray) -> np.ndarray:
-    """Covariance from a Hessian, scaled to unit diagonal first (pseudo-inverse)."""
-    d = np.sqrt(np.maximum(np.diag(h), 1e-300))
-    return np.linalg.pinv(h / np.outer(d, d), rcond=1e-12, hermitian=True) / np.outer(d, d)
 
 
 def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
@@ -93,7 +87,7 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     logp = logp_rows(model)
     idx = np.arange(u_hat.shape[0])
     h, g = (np.asarray(a) for a in curv(jnp.asarray(u_hat), data.t, *data.arrays()))
-    step = np.stack([-_inverse(hi) @ gi if np.all(np.isfinite(hi)) and np.all(np.isfinite(gi))
+    step = np.stack([-scaled_pinv(hi) @ gi if np.all(np.isfinite(hi)) and np.all(np.isfinite(gi))
                      else np.zeros_like(gi) for hi, gi in zip(h, g, strict=True)])
     cand = u_hat + step
     better = np.asarray(logp(cand, idx, data.t, *data.arrays())) > np.asarray(
@@ -104,10 +98,8 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     cond = np.full(h.shape[0], np.inf)
     for i, hi in enumerate(h):
         if np.all(np.isfinite(hi)):
-            d = np.sqrt(np.maximum(np.diag(hi), 1e-300))
-            ev = np.linalg.eigvalsh(hi / np.outer(d, d))
-            cond[i] = ev[-1] / ev[0] if ev[0] > 0 else np.inf
-            cov[i] = _inverse(hi)
+            cond[i] = scaled_condition(hi)
+            cov[i] = scaled_pinv(hi)
     return mode, cov, cond
 
 

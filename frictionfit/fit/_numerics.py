@@ -1,0 +1,44 @@
+"""Small numerics shared by the fit and the posterior: the delta method, scaled
+inverses and condition numbers of normal matrices, and padding to a chunk size."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+__all__ = ["DELTA_STEP", "fd_slope", "pad_rows", "scaled_condition", "scaled_pinv"]
+
+#: Step of the central differences of the delta method (unconstrained units).
+DELTA_STEP = 1e-6
+
+
+def fd_slope(f: Callable, u, h: float = DELTA_STEP):
+    """``df/du`` at ``u`` by a central difference, elementwise (the delta method's slope)."""
+    return (f(u + h) - f(u - h)) / (2 * h)
+
+
+def _unit_diagonal(a: np.ndarray):
+    """``a (..., p, p)`` scaled to unit diagonal, and the outer product of the scales."""
+    d = np.sqrt(np.maximum(np.diagonal(a, axis1=-2, axis2=-1), 1e-300))
+    outer = d[..., :, None] * d[..., None, :]
+    return a / outer, outer
+
+
+def scaled_condition(a: np.ndarray) -> np.ndarray:
+    """Condition number of each symmetric ``a (..., p, p)`` scaled to unit diagonal
+    (inf unless positive definite)."""
+    ev = np.linalg.eigvalsh(_unit_diagonal(a)[0])
+    low = ev[..., 0]
+    return np.where(low > 0, ev[..., -1] / np.where(low > 0, low, 1.0), np.inf)
+
+
+def scaled_pinv(a: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """Pseudo-inverse of each symmetric ``a (..., p, p)``, taken at unit diagonal."""
+    unit, outer = _unit_diagonal(a)
+    return np.linalg.pinv(unit, rcond=rcond, hermitian=True) / outer
+
+
+def pad_rows(idx: np.ndarray, size: int) -> np.ndarray:
+    """``idx`` padded to ``size`` entries by repeating its last one (one compiled shape)."""
+    return np.concatenate([idx, np.full(size - idx.size, idx[-1])])
