@@ -51,16 +51,17 @@ print(len(recs), "measurements of", len(CLASSES), "classes in 2 sessions")
 # ## Every feature set, the same protocol
 # `physical` is, by default, the model-free contact quantities measured per phase and
 # channel, with the gain-free shape quantities (slip ripple, normalised relaxation
-# curve); `physical (all)` adds the fitted contact-model parameters (`fitted=True`: one
-# batched fit of every motion and channel, the costly one). The data span two sessions,
-# so `evaluate` asks for the LDA projection between the scaler and the SVM
+# curve); `fitted` is the contact law's parameters alone, from one whole-measurement fit
+# per recording of each channel along the rubbing direction (`thumb_x`, `index_x`: rig,
+# sensor and law fitted once each); `physical (all)` is both (`fitted=True`). The data
+# span two sessions, so `evaluate` asks for the LDA projection between the scaler and the SVM
 # (`projection_for`), but with one training day of 36 recordings in 12 classes there are
 # too few rows for the within-class covariance of 88 features, and the projection steps
 # aside (`DiscriminantProjection`). Rows are cached by recording content, so the second
 # fold and the later cells reuse them.
 
 # %%
-FEATURE_SETS = {"physical": None,
+FEATURE_SETS = {"physical": None, "fitted": None,
                 "physical (all)": make_pipeline("physical", fitted=True, project="lda"),
                 "handcrafted": None, "fftbins": None, "raw": None,
                 "physical,handcrafted": None}
@@ -83,7 +84,7 @@ table.round(3)
 
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
-best_other = table.drop(index=["physical", "physical (all)"])["accuracy"].idxmax()
+best_other = table.drop(index=["physical", "fitted", "physical (all)"])["accuracy"].idxmax()
 for ax, names in zip(axes, ("physical (all)", best_other), strict=True):
     cm = results[names].confusion
     ConfusionMatrixDisplay(cm.to_numpy(), display_labels=cm.index).plot(

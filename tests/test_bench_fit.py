@@ -33,3 +33,8 @@ def test_quick_run_reports_every_summary_number():
     assert {"config", "seconds_per_trial", "error", "error_name", "success_rate"} <= set(
         out["points"][0])
     assert out["machine"]["cpu_count"] >= 1
+    meas = out["summary"]["measurements"]  # whole-measurement truth recovery
+    assert meas["recordings_per_s"] > 0 and 0 <= meas["converged_rate"] <= 1
+    assert set(meas["median_rel_error_by_param"]) >= {"k", "f_kin", "f_static_excess",
+                                                      "relax_frac", "tau"}
+    assert meas["median_rel_error_by_param"]["k"] < 0.2  # per-motion fits: ~50x off

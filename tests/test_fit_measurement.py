@@ -87,6 +87,12 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     # measured on these six: k 0.03, f_kin 0.01 (per-motion fits: k off by 50x)
     assert err["k"] < 0.10 and err["f_kin"] < 0.05, err
     assert np.all(res.r2 > 0.99)
+    d = items[0]  # the result recomputes its curve: the weighted R^2 it reports
+    pred = res.predict(0, d.t)
+    w2 = d.weight**2
+    y_bar = np.sum(w2 * d.y) / np.sum(w2)
+    r2 = 1 - np.sum(w2 * (pred - d.y) ** 2) / np.sum(w2 * (d.y - y_bar) ** 2)
+    assert r2 == pytest.approx(res.r2[0], rel=1e-9)
 
 
 def test_cli_fits_whole_recordings(tmp_path, simulated, monkeypatch):
@@ -96,7 +102,7 @@ def test_cli_fits_whole_recordings(tmp_path, simulated, monkeypatch):
     run = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--whole", "--channel",
                                    "index_x", "--out", str(out), "--report"])
     assert run.exit_code == 0, run.output
-    assert "measurement-relaxation2" in run.output and "[[Correlations]]" in run.output
+    assert "[[BIC by model]]" in run.output and "[[Correlations]]" in run.output
     import pandas as pd
 
     frame = pd.read_csv(out)

@@ -146,6 +146,20 @@ def to_markdown(bench: Mapping) -> str:
         lines += _table(["configuration", "s / trial", "error", "value", "Pareto"],
                         [[p["config"], p["seconds_per_trial"], p["error_name"], p["error"],
                           "**yes**" if p.get("pareto") else ""] for p in points])
+    for name, stage in bench.get("stages", {}).items():
+        meas = stage.get("summary", {}).get("measurements")
+        if meas:
+            lines += [f"## {name}: whole measurements", "",
+                      f"{meas['n_recordings']} simulated measurements, {meas['channel']}: "
+                      f"{meas['recordings_per_s']:.3g} recordings/s (compile "
+                      f"{meas['compile_s']:.3g} s), converged {meas['converged_rate']:.3g}, "
+                      f"converged with no law parameter flagged "
+                      f"{meas['converged_unflagged_rate']:.3g}.", ""]
+            lines += _table(["parameter", "median |rel. error|", "median signed error",
+                             "flagged"],
+                            [[k, v, meas["median_signed_error_by_param"][k],
+                              meas["flagged_rate_by_param"].get(k)]
+                             for k, v in meas["median_rel_error_by_param"].items()])
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
                                        if not isinstance(v, (list, dict))])

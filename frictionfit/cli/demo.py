@@ -53,8 +53,9 @@ def demo(
     data: Path = typer.Option(Path("data"), help="Folder of sample recordings."),
     out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
     channel: str = typer.Option("index_x", help="Channel to fit."),
-    model: str = typer.Option("relaxation2", help="Contact law of the whole-measurement fit: "
-                              "relaxation, relaxation2 or rich."),
+    model: str = typer.Option("auto", help="Contact law of the whole-measurement fit: auto "
+                              "(with or without a static peak, by BIC), no_peak2, relaxation, "
+                              "relaxation2 or rich."),
     classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
                                   "and classify the sample data."),
     fitted_features: bool = typer.Option(False, help="Classify with fitted model parameters "
@@ -66,7 +67,6 @@ def demo(
 
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
-    from frictionfit.models import MeasurementModel
     from frictionfit.segmentation import segment
 
     out.mkdir(parents=True, exist_ok=True)
@@ -86,7 +86,7 @@ def demo(
     typer.echo(f"segmented {n_motions} motions (the preparatory one dropped); largest phase "
                f"boundary error against the simulator's motor: {worst * 1e3:.1f} ms")
     items = [measurement_data(rec, channel) for rec in recs]
-    result = fit_measurements(items, model=MeasurementModel(model), progress=False)
+    result = fit_measurements(items, model=model, progress=False)
     result.to_frame([f"{d.name}/{d.channel}" for d in items]).to_csv(out / "fits.csv",
                                                                       index=False)
     typer.echo("\n" + fit_report(result, 0))
@@ -99,7 +99,7 @@ def demo(
         for n in names:
             true = np.median([tm["channels"][channel][n] for tm in rec.truth["motions"][1:]]
                              ) if rec.truth else np.nan
-            cells.append(f"{true:8.3g}/{values[n]:<8.3g}")
+            cells.append(f"{true:8.3g}/{values.get(n, 0.0):<8.3g}")
         typer.echo(f"{rec.name:22s} " + " ".join(cells))
     typer.echo(f"\nall fits: {out / 'fits.csv'}")
     if classify:

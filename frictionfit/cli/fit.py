@@ -43,8 +43,8 @@ def fit(
     whole: bool = typer.Option(False, help="Fit each recording whole: one rig (motor timing), "
                                "sensor (offset, drift, leak) and contact law per recording and "
                                "channel, the law's state carried from stroke to stroke; "
-                               "--model then names the law (relaxation, relaxation2, rich; "
-                               "default relaxation2)."),
+                               "--model then names the law (no_peak2, relaxation, relaxation2, "
+                               "rich, or auto: with or without a static peak by BIC)."),
     channel: list[str] = typer.Option([], help="With --whole: channels to fit (repeatable; "
                                       "default thumb_x and index_x)."),
 ) -> None:
@@ -80,7 +80,7 @@ def fit(
         if unsupported:
             raise typer.BadParameter(f"{', '.join(unsupported)} work on per-motion fits only",
                                      param_hint="--whole")
-        law = "relaxation2" if model == "auto" else model
+        law = model
         _fit_whole(files, strict, law, tuple(channel) or ("thumb_x", "index_x"), priors,
                    out, report)
         return
@@ -144,8 +144,10 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     from frictionfit.models import MeasurementModel
     from frictionfit.recording import read_recording
 
+    if priors and law == "auto":
+        raise typer.BadParameter("priors need one law: choose --model", param_hint="--prior")
     try:
-        model = MeasurementModel(law).with_priors(priors)
+        model = law if law == "auto" else MeasurementModel(law).with_priors(priors)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
     items, problems = [], []

@@ -143,8 +143,10 @@ class PhysicalFeatures(RecordingFeatures):
         :func:`frictionfit.classify.make_pipeline`, and lower it from 0.81 to 0.76
         without it (too many weakly informative directions for an RBF kernel on
         raw scales).
-    model : str, default "relaxation2"
-        Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``).
+    model : str, default "auto"
+        Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``), or
+        ``"auto"``: with or without a static peak, by BIC (without: ``f_static_excess`` is
+        reported at its lower bound).
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
@@ -166,11 +168,11 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 5  # 5: whole-measurement fits
+    _version = 6  # 6: whole-measurement fits, law chosen by BIC
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
-                 model: str = "relaxation2",
+                 model: str = "auto",
                  decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
                  with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
                  cache: bool = True):
@@ -286,7 +288,6 @@ class PhysicalFeatures(RecordingFeatures):
         """Per recording, channel -> row of fitted features, from one whole-measurement fit
         of every (recording, fitted channel) in one batch (NaN rows where a fit failed)."""
         from frictionfit.fit.measurement import fit_measurements, measurement_data
-        from frictionfit.models import MeasurementModel
 
         width = len(self._fitted_names())
         fitted = [c for c in self.channels if c in FITTED_CHANNELS]
@@ -301,8 +302,7 @@ class PhysicalFeatures(RecordingFeatures):
         out: list[dict[str, np.ndarray]] = [{} for _ in recordings]
         if not items:
             return out
-        res = fit_measurements(items, model=MeasurementModel(self.model),
-                               max_steps=self.max_steps)
+        res = fit_measurements(items, model=self.model, max_steps=self.max_steps)
         ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
         if self.accept_max_steps:
             ok.add(Status.MAX_STEPS)
@@ -316,6 +316,9 @@ class PhysicalFeatures(RecordingFeatures):
         """Log10 of the positive parameters (stderr of the log10 with ``with_stderr``)."""
         row = []
         for p in FITTED:
+            if p not in values:  # a law without this effect: its size is nil
+                row += [np.log10(PARAMS[p].lower)] + ([0.0] if self.with_stderr else [])
+                continue
             logged = PARAMS[p].transform == "loglogit"
             row.append(np.log10(values[p]) if logged else values[p])
             if self.with_stderr:
@@ -328,7 +331,7 @@ class FittedFeatures(PhysicalFeatures):
     ``fitted=True, measured=False``): every feature a physical property of the contact."""
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
-                 model: str = "relaxation2",
+                 model: str = "auto",
                  decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
                  with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
                  cache: bool = True):

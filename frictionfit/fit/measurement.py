@@ -18,14 +18,15 @@ from functools import lru_cache
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import statistics, status_of
-from frictionfit.fit.result import FitResult
+from frictionfit.fit._stats import BIC_TIE, statistics, status_of
+from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.recording import Recording
@@ -200,10 +201,14 @@ def _stack(items: Sequence[MeasurementData], base: np.ndarray):
 RIG = ("delay", "ramp", "accel")
 
 
+#: The laws ``model="auto"`` chooses from, simplest first.
+AUTO_LAWS = ("no_peak2", "relaxation2")
+
+
 def fit_measurements(
     items: Sequence[MeasurementData],
     *,
-    model: MeasurementModel | None = None,
+    model: MeasurementModel | str = "auto",
     rig: str = "recording",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
@@ -213,33 +218,64 @@ def fit_measurements(
     threads: int | None = None,
     progress: bool | None = None,
 ) -> FitResult:
-    """Fit ``model`` (default: :class:`MeasurementModel`, ``relaxation2`` law) to every item.
+    """Fit ``model`` to every item; ``"auto"``: per item, the first law of :data:`AUTO_LAWS`
+    (with the same rig and sensor) whose BIC is within ``BIC_TIE`` of the best.
 
-    ``rig="session"``: fit every item, then hold the rig's :data:`RIG` parameters at their
-    median over each session's converged fits and fit again from there (the motor is the
-    same for every recording of a day). ``timing="movement"``: then shift each movement's
-    command by its own latency deviation (found per movement at the first optimum) and fit
-    again; ``"rig"``: one latency for all. ``fix``: name -> physical value (one, or one per
-    item) held fixed. ``u0``: unconstrained starting points (default: the data's guess).
+    ``rig="session"``: hold the rig's :data:`RIG` parameters at their median over each
+    session's converged first fits and fit again (the motor is the same for every recording
+    of a day). ``timing="movement"``: shift each movement's command by its own latency
+    deviation (found per movement at the first optimum) and fit again; ``"rig"``: one
+    latency for all. ``fix``: name -> physical value (one, or one per item) held fixed.
+    ``u0``: unconstrained starting points (a single model only; default: the data's guess).
     Returns a :class:`FitResult` with one row per item (values in physical units,
-    lmfit-style statistics, flags of what the data do not determine, a status each).
+    lmfit-style statistics, flags of what the data do not determine, a status each; with
+    ``"auto"`` the BIC of every law in ``bic_table``).
     """
     if rig not in ("recording", "session"):
         raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
     if timing not in ("movement", "rig"):
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
-    model = MeasurementModel("relaxation2") if model is None else model
+    models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
+              else [MeasurementModel(model) if isinstance(model, str) else model])
     start = time.perf_counter()
-    kw = dict(model=model, max_steps=max_steps, pool_size=pool_size, threads=threads,
-              progress=progress)
-    result = _fit(items, fix=fix, u0=u0, **kw)
-    held = dict(fix or {}) | (_session_rig(items, result) if rig == "session" else {})
+    kw = dict(max_steps=max_steps, pool_size=pool_size, threads=threads, progress=progress)
+    firsts = [_fit(items, model=m, fix=fix, u0=u0 if len(models) == 1 else None, **kw)
+              for m in models]
+    bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, firsts, strict=True)})
+    chosen = _smallest_within_tie(bic)
+    first = _in_order([take_trials(r, np.flatnonzero(chosen == j))
+                       for j, r in enumerate(firsts)], chosen)
+    held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
-        items = _with_movement_timing(model, items, result)
+        items = _with_movement_timing(models, chosen, items, first)
     if held != dict(fix or {}) or timing == "movement":
-        result = _fit(items, fix=held, u0=np.stack(result.u), **kw)
-    result.wall_s = time.perf_counter() - start
-    return result
+        parts = []
+        for j, m in enumerate(models):
+            rows = np.flatnonzero(chosen == j)
+            if rows.size:
+                parts.append(_fit([items[i] for i in rows], model=m,
+                                  u0=np.stack([first.u[i] for i in rows]),
+                                  fix={n: np.broadcast_to(v, (len(items),))[rows]
+                                       for n, v in held.items()}, **kw))
+        first = _in_order(parts, chosen)
+    first.bic_table = bic if len(models) > 1 else None
+    first.wall_s = time.perf_counter() - start
+    return first
+
+
+def _smallest_within_tie(bic: pd.DataFrame) -> np.ndarray:
+    """Per row, the first column whose BIC is within ``BIC_TIE`` of the row's best."""
+    values = bic.to_numpy()
+    best = np.nanmin(np.where(np.isfinite(values), values, np.inf), axis=1)
+    within = values <= best[:, None] + BIC_TIE
+    return np.where(within.any(axis=1), np.argmax(within, axis=1), values.shape[1] - 1)
+
+
+def _in_order(parts: list[FitResult], chosen: np.ndarray) -> FitResult:
+    """One result, rows in item order, from per-law results of the rows that chose each law."""
+    parts = [p for p in parts if p.n_trials]
+    rows = np.concatenate([np.flatnonzero(chosen == j) for j in np.unique(chosen)])
+    return take_trials(concat_results(parts), np.argsort(rows))
 
 
 #: Per-movement onset shifts searched (s): the motor's latency jitters from one command to
@@ -263,14 +299,15 @@ def _window_costs_fn(model: MeasurementModel):
     return jax.jit(costs)
 
 
-def _with_movement_timing(model: MeasurementModel, items: Sequence[MeasurementData],
-                          result: FitResult) -> list[MeasurementData]:
+def _with_movement_timing(models: list[MeasurementModel], chosen: np.ndarray,
+                          items: Sequence[MeasurementData], result: FitResult
+                          ) -> list[MeasurementData]:
     """Items whose command times carry each movement's own latency deviation: per fine
-    window, the shift in :data:`SHIFTS_S` that fits it best at the first fit's optimum,
-    minus their median (the shared ``delay`` keeps the typical latency)."""
-    fn = _window_costs_fn(model)
+    window, the shift in :data:`SHIFTS_S` that fits it best at the first fit's optimum
+    (of the item's chosen model), minus their median (``delay`` keeps the typical latency)."""
     out = []
-    for d, u in zip(items, result.u, strict=True):
+    for d, u, j in zip(items, result.u, chosen, strict=True):
+        fn = _window_costs_fn(models[j])
         cost = np.asarray(fn(jnp.asarray(u), d.y, d.weight, d.t, d.commands, d.signs,
                              d.direction))
         seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
@@ -337,7 +374,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
         model=[model.name] * len(items), values=stats["values"], stderr=stats["stderr"],
         flags=stats["flags"], status=status.astype(np.int64), chi2=stats["chi2"],
         redchi=stats["redchi"], aic=stats["aic"], bic=stats["bic"], r2=r2, cond=cond,
-        n_steps=steps, u=list(u), direction=data[5],
+        n_steps=steps, u=list(u), direction=data[5], drive="measurement",
+        drive_input=[(d.commands, d.signs) for d in items],
         init=[_physical_init(model, d.guess) for d in items],
         correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model))
 

@@ -38,8 +38,10 @@ __all__ = ["LAWS", "MeasurementModel", "to_unconstrained", "trapezoid"]
 #: stroke (slip length >> stroke) standing in for the kinetic level, f_kin near zero.
 PRIORS = {"slip_length": (0.05, 1.5)}
 
-#: Contact laws of the measurement model, simplest first (names of ``contact_force`` arguments).
+#: Contact laws of the measurement model (names of ``contact_force`` arguments): ``no_peak2``
+#: has no static peak (the slider slips at its kinetic level), two Maxwell branches.
 LAWS: dict[str, tuple[str, ...]] = {
+    "no_peak2": ("k", "f_kin", "relax_frac", "tau", "relax_frac2", "tau2"),
     "relaxation": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau"),
     "relaxation2": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
                     "relax_frac2", "tau2"),
@@ -75,7 +77,7 @@ class MeasurementModel(eqx.Module):
     parameter's own prior).
     """
 
-    law: str = eqx.field(static=True, default="rich")
+    law: str = eqx.field(static=True, default="relaxation2")
     stroke_mm: float = eqx.field(static=True, default=1.0)
     priors: tuple[tuple[str, float, float], ...] | None = eqx.field(static=True, default=None)
 
