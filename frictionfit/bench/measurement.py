@@ -50,7 +50,7 @@ def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int =
     steady = time.perf_counter() - start
     ok = np.array([Status(int(s)) in (Status.CONVERGED, Status.ILL_CONDITIONED)
                    for s in res.status])
-    errors = {name: np.array([v[name] / _truth(r, name) - 1.0
+    errors = {name: np.array([v.get(name, 0.0) / _truth(r, name) - 1.0
                               for r, v in zip(recs, res.values, strict=True)])
               for name in _SCORED}
     unflagged = np.array([not any(p in f for p in KEY_PARAMS) for f in res.flags])
@@ -59,7 +59,8 @@ def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int =
                for name in KEY_PARAMS}
     peer = _against_scipy_jax(items[:n_peer])
     return {
-        "n_recordings": n, "channel": channel, "law": res.model[0],
+        "n_recordings": n, "channel": channel,
+        "laws": {m: res.model.count(m) for m in sorted(set(res.model))},
         "recordings_per_s": n / steady, "compile_s": max(first - steady, 0.0),
         "median_rel_error_by_param": {k: float(np.median(np.abs(e[ok]))) if ok.any() else None
                                       for k, e in errors.items()},

@@ -156,9 +156,10 @@ def to_markdown(bench: Mapping) -> str:
                       f"converged with no law parameter flagged "
                       f"{meas['converged_unflagged_rate']:.3g}.", ""]
             lines += _table(["parameter", "median |rel. error|", "median signed error",
-                             "flagged"],
+                             "flagged", "truth within +-1 stderr"],
                             [[k, v, meas["median_signed_error_by_param"][k],
-                              meas["flagged_rate_by_param"].get(k)]
+                              meas["flagged_rate_by_param"].get(k),
+                              meas["stderr_coverage_by_param"].get(k)]
                              for k, v in meas["median_rel_error_by_param"].items()])
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()

@@ -24,6 +24,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
+from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import BIC_TIE, statistics, status_of
 from frictionfit.fit.result import FitResult, concat_results, take_trials
@@ -361,7 +362,11 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
     resid, jtj = _at_optimum(model, free, u[:, free], data)
     weight = data[1]
     mask = weight > 0
-    stats = statistics(model, u, resid, jtj, mask, free, tuple(fix))
+    # AR(1) residuals carry fewer independent points than blocks: the covariance grows by
+    # (1 + rho) / (1 - rho), the variance of a mean of correlated noise.
+    rho = np.clip(lag1_rho(resid, mask), *RHO_POSTERIOR)
+    stats = statistics(model, u, resid, jtj * ((1 - rho) / (1 + rho))[:, None, None], mask,
+                       free, tuple(fix))
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
