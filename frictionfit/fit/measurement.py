@@ -227,7 +227,7 @@ def fit_measurements(
     of a day). ``timing="movement"``: shift each movement's command by its own latency
     deviation (found per movement at the first optimum) and fit again; ``"rig"``: one
     latency for all. ``fix``: name -> physical value (one, or one per item) held fixed.
-    ``u0``: unconstrained starting points (a single model only; default: the data's guess).
+    ``u0``: unconstrained starting points (of the first law; default: the data's guess).
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``).
@@ -240,8 +240,11 @@ def fit_measurements(
               else [MeasurementModel(model) if isinstance(model, str) else model])
     start = time.perf_counter()
     kw = dict(max_steps=max_steps, pool_size=pool_size, threads=threads, progress=progress)
-    firsts = [_fit(items, model=m, fix=fix, u0=u0 if len(models) == 1 else None, **kw)
-              for m in models]
+    again = rig == "session" or timing == "movement"  # a second fit polishes the first
+    coarse = [_halved(d) for d in items] if again else items
+    firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw)]
+    for m in models[1:]:  # each larger law starts from the smaller one's optimum
+        firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw))
     bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, firsts, strict=True)})
     chosen = _smallest_within_tie(bic)
     first = _in_order([take_trials(r, np.flatnonzero(chosen == j))
@@ -249,7 +252,7 @@ def fit_measurements(
     held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
         items = _with_movement_timing(models, chosen, items, first)
-    if held != dict(fix or {}) or timing == "movement":
+    if again:
         parts = []
         for j, m in enumerate(models):
             rows = np.flatnonzero(chosen == j)
@@ -262,6 +265,34 @@ def fit_measurements(
     first.bic_table = bic if len(models) > 1 else None
     first.wall_s = time.perf_counter() - start
     return first
+
+
+def _extended(model: MeasurementModel, items: Sequence[MeasurementData], smaller: FitResult
+              ) -> np.ndarray:
+    """Starting points of ``model``: the smaller law's optimum where it has the parameter,
+    the data's guess elsewhere (unconstrained)."""
+    starts = []
+    for d, v in zip(items, smaller.values, strict=True):
+        start = d.guess | v
+        if "f_static_excess" not in v:  # a small peak on top of the kinetic level found
+            start["f_static_excess"] = 0.1 * v["f_kin"]
+        starts.append(to_unconstrained(model, start))
+    return np.stack(starts)
+
+
+def _halved(d: MeasurementData) -> MeasurementData:
+    """``d`` with neighbouring blocks merged in pairs (weighted means; for the first fit,
+    which a second fit on ``d`` itself polishes)."""
+    m = d.y.size // 2 * 2
+    w2 = (d.weight[:m] ** 2).reshape(-1, 2)
+    total = w2.sum(axis=1)
+
+    def merged(a):
+        pairs = a[:m].reshape(-1, 2)
+        plain = pairs.mean(axis=1)  # where both blocks are unused
+        return np.where(total > 0, (w2 * pairs).sum(axis=1) / np.maximum(total, 1e-300), plain)
+
+    return replace(d, t=merged(d.t), y=merged(d.y), weight=np.sqrt(total))
 
 
 def _smallest_within_tie(bic: pd.DataFrame) -> np.ndarray:
