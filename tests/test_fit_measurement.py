@@ -130,3 +130,16 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
 def test_fix_rejects_unknown_parameters(simulated):
     with pytest.raises(ValueError, match="cannot fix"):
         fit_measurements([measurement_data(simulated[0], "index_x")], fix={"wobble": 1.0})
+
+
+def test_fitted_features_follow_the_sklearn_contract():
+    from sklearn.base import clone
+
+    from frictionfit.features.physical import FittedFeatures
+
+    f = FittedFeatures(rig="recording", decimate=2)
+    assert clone(f).get_params() == f.get_params()
+    assert list(f.get_feature_names_out()) == [
+        f"{ch}:fit_{n}" for ch in ("thumb_x", "index_x")
+        for n in ("k [log10 N/mm]", "f_static [log10 N]", "relax_frac [1]", "tau [log10 s]",
+                  "drag [log10 N s/mm]")]

@@ -219,7 +219,8 @@ def fit_measurements(
     threads: int | None = None,
     progress: bool | None = None,
 ) -> FitResult:
-    """Fit ``model`` to every item; ``"auto"``: per item, the first law of :data:`AUTO_LAWS`
+    """Fit ``model`` to every item (``progress``: a bar; default: on a terminal, from 16
+    items); ``"auto"``: per item, the first law of :data:`AUTO_LAWS`
     (with the same rig and sensor) whose BIC is within ``BIC_TIE`` of the best.
 
     ``rig="session"``: hold the rig's :data:`RIG` parameters at their median over each
@@ -381,8 +382,9 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
     data = _stack(items, base)
     normal, _ = _normal_fn(model, free)
     threads = available_cores() if threads is None else threads
-    show = len(items) >= 8 if progress is None else progress
-    with tqdm(total=len(items), desc="fit", unit="rec", disable=not show) as bar:
+    # a bar on a terminal only (tqdm's None), for batches long enough to wait for
+    show = (None if len(items) >= 16 else True) if progress is None else not progress
+    with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
         u_free, code, steps = solve_pool(normal, base[:, free], data,
                                          LMConfig(max_steps=max_steps), pool_size, threads,
                                          progress=bar.update)
