@@ -135,14 +135,27 @@ def fit(
         typer.echo(fit_report(first, 0))
 
 
+def _usable(f: Path):
+    """The recording at ``f``, its problems named on stderr; RecordingError where one of them
+    makes its numbers wrong."""
+    from frictionfit.errors import RecordingError
+    from frictionfit.recording import read_recording
+
+    rec = read_recording(f, on_error="flag")
+    for p in rec.problems:
+        typer.echo(f"{f}: [{p.kind}] {p}", err=True)
+    if rec.disqualified:
+        raise RecordingError(f"{rec.disqualified[0]}", path=f)
+    return rec
+
+
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
                priors: dict | None, out: Path, report: bool) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each."""
-    from frictionfit.errors import FrictionfitError, RecordingError
+    from frictionfit.errors import FrictionfitError
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
-    from frictionfit.recording import read_recording
 
     if priors and law == "auto":
         raise typer.BadParameter("priors need one law: choose --model", param_hint="--prior")
@@ -153,11 +166,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     items, problems = [], []
     for f in files:
         try:
-            rec = read_recording(f, on_error="flag")
-            for p in rec.problems:
-                typer.echo(f"{f}: [{p.kind}] {p}", err=True)
-            if rec.disqualified:
-                raise RecordingError(f"{rec.disqualified[0]}", path=f)
+            rec = _usable(f)
             found = [measurement_data(rec, ch) for ch in channels]
         except (FrictionfitError, ValueError) as exc:
             if strict:
@@ -202,8 +211,7 @@ def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[
     (named on stderr); how many recordings were used. A recording that cannot be read or
     segmented, or whose problems make its numbers wrong, is skipped by name (``strict``:
     the command stops)."""
-    from frictionfit.errors import FrictionfitError, RecordingError
-    from frictionfit.recording import read_recording
+    from frictionfit.errors import FrictionfitError
     from frictionfit.segmentation import segment
 
     batches: dict[float, _Batch] = {}
@@ -211,11 +219,7 @@ def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[
     used = 0
     for f in files:
         try:
-            rec = read_recording(f, on_error="flag")
-            for p in rec.problems:
-                typer.echo(f"{f}: [{p.kind}] {p}", err=True)
-            if rec.disqualified:
-                raise RecordingError(f"{rec.disqualified[0]}", path=f)
+            rec = _usable(f)
             motions = segment(rec)
         except FrictionfitError as exc:
             if strict:

@@ -68,7 +68,24 @@ PARAMS: dict[str, Param] = {
 }
 
 
-class ContactModel(eqx.Module):
+class NamedParameters:
+    """What a model with a ``param_names`` property gets from :data:`PARAMS`: the
+    parameters' definitions, their count, and physical values from unconstrained ones."""
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        return tuple(PARAMS[n] for n in self.param_names)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def physical(self, u):
+        """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
+        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
+
+
+class ContactModel(eqx.Module, NamedParameters):
     """A member of the family: a name, its force-law parameters, and its drive.
 
     ``drive="events"`` builds the finger displacement from the two ``move``
@@ -142,17 +159,6 @@ class ContactModel(eqx.Module):
         extra = ("delay", "ramp") if self.drive == "events" else ()
         return ("offset", *self.law_names, *extra)
 
-    @property
-    def params(self) -> tuple[Param, ...]:
-        return tuple(PARAMS[n] for n in self.param_names)
-
-    @property
-    def n_params(self) -> int:
-        return len(self.param_names)
-
-    def physical(self, u):
-        """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
-        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
 
     def predict(self, u, t, drive_input, direction):
         """Predicted channel (N) at uniform times ``t`` (s) for unconstrained parameters ``u``.

@@ -26,8 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models.family import PARAMS
-from frictionfit.models.params import Param
+from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
 __all__ = ["LAWS", "MeasurementModel", "to_unconstrained", "trapezoid"]
@@ -68,7 +67,7 @@ def trapezoid(u, accel):
     return pos, vel
 
 
-class MeasurementModel(eqx.Module):
+class MeasurementModel(eqx.Module, NamedParameters):
     """One channel of a whole measurement: ``offset + drift t + leak x + direction F``.
 
     ``law``: a key of :data:`LAWS`. ``stroke_mm``: the nominal travel of a movement
@@ -96,14 +95,6 @@ class MeasurementModel(eqx.Module):
     @property
     def param_names(self) -> tuple[str, ...]:
         return ("offset", "drift", "leak", *self.law_names, "drag", "delay", "ramp", "accel")
-
-    @property
-    def params(self) -> tuple[Param, ...]:
-        return tuple(PARAMS[n] for n in self.param_names)
-
-    @property
-    def n_params(self) -> int:
-        return len(self.param_names)
 
     def with_priors(self, priors: Mapping[str, tuple[float, float] | None] | None = None
                     ) -> MeasurementModel:
@@ -137,10 +128,6 @@ class MeasurementModel(eqx.Module):
         if not rows:
             return jnp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
         return jnp.stack(rows, axis=-1)
-
-    def physical(self, u):
-        """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
-        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
 
     def finger(self, u, t, commands, signs):
         """Finger travel (mm) and velocity (mm/s) at times ``t`` (s).
