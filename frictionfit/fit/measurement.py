@@ -1,11 +1,15 @@
 """Fit whole rubbing measurements: one rig, sensor and material per recording and channel.
 
-:func:`fit_measurements` puts one channel of each recording on its uniform time grid
-(dropped rows, NaN, spikes and stuck values masked), averages blocks of ``decimate``
-samples, and fits :class:`~frictionfit.models.MeasurementModel` to every recording with
-the batched Levenberg-Marquardt of :func:`~frictionfit.fit._lm.solve_pool` (pools of
-recordings, slots refilled). The first ``skip_motions`` motions are simulated (they set
-the contact's state) but not fitted: closing the fingers leaves an unknown internal force.
+:func:`measurement_data` puts one channel of a recording on its time grid (dropped rows,
+NaN, spikes and stuck values masked) as block means: single samples while the finger
+moves, blocks of 10 while it holds. :func:`fit_measurements` fits
+:class:`~frictionfit.models.MeasurementModel` to every item with the batched
+Levenberg-Marquardt of :func:`~frictionfit.fit._lm.solve_pool` (pools of recordings, slots
+refilled): a first fit on blocks merged in pairs (each law of ``"auto"``, the larger from
+the smaller's optimum; the law by BIC), then each movement's own latency and, optionally,
+the session's rig held, and a second fit on the full grid. The first ``skip_motions``
+motions are simulated (they set the contact's state) but not fitted: closing the fingers
+leaves an unknown internal force.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from frictionfit.errors import Status
 from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import BIC_TIE, statistics, status_of
+from frictionfit.fit._stats import choose, statistics, status_of
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
@@ -247,7 +251,7 @@ def fit_measurements(
     for m in models[1:]:  # each larger law starts from the smaller one's optimum
         firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw))
     bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, firsts, strict=True)})
-    chosen = _smallest_within_tie(bic)
+    chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
     first = _in_order([take_trials(r, np.flatnonzero(chosen == j))
                        for j, r in enumerate(firsts)], chosen)
     held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
@@ -294,14 +298,6 @@ def _halved(d: MeasurementData) -> MeasurementData:
         return np.where(total > 0, (w2 * pairs).sum(axis=1) / np.maximum(total, 1e-300), plain)
 
     return replace(d, t=merged(d.t), y=merged(d.y), weight=np.sqrt(total))
-
-
-def _smallest_within_tie(bic: pd.DataFrame) -> np.ndarray:
-    """Per row, the first column whose BIC is within ``BIC_TIE`` of the row's best."""
-    values = bic.to_numpy()
-    best = np.nanmin(np.where(np.isfinite(values), values, np.inf), axis=1)
-    within = values <= best[:, None] + BIC_TIE
-    return np.where(within.any(axis=1), np.argmax(within, axis=1), values.shape[1] - 1)
 
 
 def _in_order(parts: list[FitResult], chosen: np.ndarray) -> FitResult:
