@@ -37,7 +37,7 @@ from frictionfit.models.measurement import to_unconstrained
 from frictionfit.recording import Recording
 from frictionfit.segmentation import moving_average, regrid, suspect_samples
 
-__all__ = ["MeasurementData", "fit_measurements", "measurement_data"]
+__all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data"]
 
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
@@ -270,6 +270,50 @@ def fit_measurements(
     first.bic_table = bic if len(models) > 1 else None
     first.wall_s = time.perf_counter() - start
     return first
+
+
+#: Fewest usable blocks for a motion to be refitted on its own (a motion has ~700).
+MIN_MOTION_BLOCKS = 100
+#: Parameters of the rig and the sensor: held when single motions are refitted.
+SETUP = ("offset", "drift", "leak", *RIG)
+
+
+def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_steps: int = 100,
+                pool_size: int = 16, threads: int | None = None
+                ) -> tuple[FitResult, np.ndarray, np.ndarray]:
+    """Each fitted motion of each item on its own: the law refitted on the motion's window
+    (from its out command to the next one), rig and sensor held at the whole fit's values
+    (:data:`SETUP`), from the whole fit's optimum; the earlier motions are still simulated.
+
+    Returns the result (one row per motion) and, per row, the item's index and the motion's
+    number: the spread of a parameter over one item's motions says how well one law
+    describes the whole measurement.
+    """
+    rows, item_of, motion_of, parts = [], [], [], []
+    for name in dict.fromkeys(result.model):
+        model = MeasurementModel(name.removeprefix("measurement-"))
+        sub, fixed, starts = [], {n: [] for n in SETUP}, []
+        for i, d in enumerate(items):
+            if result.model[i] != name:
+                continue
+            commands = np.asarray(result.drive_input[i][0])
+            outs = commands[result.drive_input[i][1] > 0]
+            for m, (a, b) in enumerate(zip(outs, [*outs[1:], np.inf], strict=True)):
+                weight = np.where((d.t >= a) & (d.t < b), d.weight, 0.0)
+                if np.count_nonzero(weight) < MIN_MOTION_BLOCKS:
+                    continue  # the preparatory motion, or one with too few usable blocks
+                sub.append(replace(d, commands=commands, weight=weight))
+                starts.append(result.u[i])
+                for n in SETUP:
+                    fixed[n].append(result.values[i][n])
+                rows.append(len(rows))
+                item_of.append(i)
+                motion_of.append(m)
+        if sub:
+            parts.append(_fit(sub, model=model, fix={n: np.array(v) for n, v in fixed.items()},
+                              u0=np.stack(starts), max_steps=max_steps, pool_size=pool_size,
+                              threads=threads, progress=False))
+    return concat_results(parts), np.array(item_of), np.array(motion_of)
 
 
 def _extended(model: MeasurementModel, items: Sequence[MeasurementData], smaller: FitResult
