@@ -69,8 +69,9 @@ PARAMS: dict[str, Param] = {
 
 
 class NamedParameters:
-    """What a model with a ``param_names`` property gets from :data:`PARAMS`: the
-    parameters' definitions, their count, and physical values from unconstrained ones."""
+    """What a model with ``param_names`` and ``prior_table`` properties gets from
+    :data:`PARAMS`: the parameters' definitions, their count, physical values from
+    unconstrained ones, and the prior rows of the fit."""
 
     @property
     def params(self) -> tuple[Param, ...]:
@@ -83,6 +84,21 @@ class NamedParameters:
     def physical(self, u):
         """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
         return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
+
+    def prior_residuals(self, u, sampling: bool = False):
+        """``(x_j - centre_j) / sd_j`` per prior, shape ``(..., n_priors)``, where ``x_j`` is
+        the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``);
+        a NumPy array for a NumPy ``u``, else a JAX array."""
+        rows = []
+        for name, prior in self.prior_table.items():
+            par = PARAMS[name]
+            centre, sd = par.prior_in_sampling(prior)
+            x = u[..., self.param_names.index(name)]
+            rows.append(((x if sampling else par.to_sampling(x)) - centre) / sd)
+        xp = np if isinstance(u, np.ndarray) else jnp  # NumPy in, NumPy out
+        if not rows:
+            return xp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
+        return xp.stack(rows, axis=-1)
 
 
 class ContactModel(eqx.Module, NamedParameters):
@@ -138,21 +154,6 @@ class ContactModel(eqx.Module, NamedParameters):
         if self.priors is None:
             return {p.name: p.prior for p in self.params if p.prior is not None}
         return {n: (c, sd) for n, c, sd in self.priors if n in self.param_names}
-
-    def prior_residuals(self, u, sampling: bool = False):
-        """``(x_j - centre_j) / sd_j`` per prior, shape ``(..., n_priors)``, where ``x_j`` is
-        the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``);
-        a NumPy array for a NumPy ``u``, else a JAX array."""
-        rows = []
-        for name, prior in self.prior_table.items():
-            par = PARAMS[name]
-            centre, sd = par.prior_in_sampling(prior)
-            x = u[..., self.param_names.index(name)]
-            rows.append(((x if sampling else par.to_sampling(x)) - centre) / sd)
-        xp = np if isinstance(u, np.ndarray) else jnp  # NumPy in, NumPy out
-        if not rows:
-            return xp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
-        return xp.stack(rows, axis=-1)
 
     @property
     def param_names(self) -> tuple[str, ...]:

@@ -118,17 +118,6 @@ class MeasurementModel(eqx.Module, NamedParameters):
             return own | {n: p for n, p in PRIORS.items() if n in self.param_names}
         return {n: (c, sd) for n, c, sd in self.priors}
 
-    def prior_residuals(self, u):
-        """``(x_j - centre_j) / sd_j`` per prior (sampling coordinates), ``(..., n_priors)``."""
-        rows = []
-        for name, prior in self.prior_table.items():
-            par = PARAMS[name]
-            centre, sd = par.prior_in_sampling(prior)
-            rows.append((par.to_sampling(u[..., self.param_names.index(name)]) - centre) / sd)
-        if not rows:
-            return jnp.zeros((*u.shape[:-1], 0), dtype=u.dtype)
-        return jnp.stack(rows, axis=-1)
-
     def finger(self, u, t, commands, signs):
         """Finger travel (mm) and velocity (mm/s) at times ``t`` (s).
 
