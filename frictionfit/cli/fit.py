@@ -124,15 +124,19 @@ def fit(
             for i, trial_id in enumerate(batch.ids):
                 plot_fit(result, i, batch.t, batch.ys[i],
                          plot / (trial_id.replace("/", "__") + ".png"), title=trial_id)
-    frame = pd.concat(frames, ignore_index=True)
+    _write(pd.concat(frames, ignore_index=True), out, "trials", wall)
+    if report:
+        typer.echo(fit_report(first, 0))
+
+
+def _write(frame, out: Path, rows: str, wall_s: float) -> None:
+    """Write the results table (.parquet or .csv) and say what it holds."""
     if out.suffix == ".parquet":
         frame.to_parquet(out)
     else:
         frame.to_csv(out, index=False)
     counts = frame["status"].value_counts().to_dict()
-    typer.echo(f"{len(frame)} trials in {wall:.1f} s; status {counts}; wrote {out}")
-    if report:
-        typer.echo(fit_report(first, 0))
+    typer.echo(f"{len(frame)} {rows} in {wall_s:.1f} s; status {counts}; wrote {out}")
 
 
 def _usable(f: Path):
@@ -183,13 +187,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     result = fit_measurements(items, model=model)
     frame = result.to_frame([f"{d.name}/{d.channel}" for d in items])
     frame.insert(1, "problems", problems)
-    if out.suffix == ".parquet":
-        frame.to_parquet(out)
-    else:
-        frame.to_csv(out, index=False)
-    counts = frame["status"].value_counts().to_dict()
-    typer.echo(f"{len(frame)} recording channels in {result.wall_s:.1f} s; status {counts}; "
-               f"wrote {out}")
+    _write(frame, out, "recording channels", result.wall_s)
     if report:
         typer.echo(fit_report(result, 0))
 

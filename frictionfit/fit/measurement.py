@@ -29,6 +29,7 @@ from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
+from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import choose, statistics, status_of
 from frictionfit.fit.result import FitResult, concat_results, take_trials
@@ -465,13 +466,8 @@ def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
     branch that relaxes as far as allowed) has a vanishing column in the fit's coordinates;
     it is reported at the bound, and the conditioning that matters is the others'.
     """
-    keep = np.flatnonzero(inside)
-    a = jtj[np.ix_(keep, keep)]
-    if not np.all(np.isfinite(a)):
-        return np.inf
-    scale = np.sqrt(np.maximum(np.diag(a), 1e-300))
-    ev = np.linalg.eigvalsh(a / np.outer(scale, scale))
-    return float(ev[-1] / ev[0]) if ev[0] > 0 else np.inf
+    a = jtj[np.ix_(np.flatnonzero(inside), np.flatnonzero(inside))]
+    return float(scaled_condition(a)) if np.all(np.isfinite(a)) else np.inf
 
 
 def _physical_init(model: MeasurementModel, guess: dict) -> dict:
