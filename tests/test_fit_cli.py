@@ -26,8 +26,8 @@ def test_recordings_at_two_rates_are_each_fitted_on_their_own_grid(tmp_path):
     _measurement(tmp_path, "fast")
     _measurement(tmp_path, "slow", step=2)  # 500 Hz
     out = tmp_path / "fits.csv"
-    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
-                                      "--out", str(out)])
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--model",
+                                      "elastic_plastic", "--out", str(out)])
     assert result.exit_code == 0, result.output
     frame = pd.read_csv(out).set_index("trial")
     fast, slow = frame.loc["fast/motion1/index_x"], frame.loc["slow/motion1/index_x"]
@@ -44,15 +44,15 @@ def test_a_rate_mismatch_is_said_and_skips_the_recording(tmp_path):
     side["sample_rate_hz"] = 500.0  # the data are at 1 kHz
     bad.with_suffix(".json").write_text(json.dumps(side))
     out = tmp_path.parent / f"{tmp_path.name}-fits.csv"
-    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
-                                      "--out", str(out)])
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--model",
+                                      "elastic_plastic", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "skipped " in result.output and "liar.csv: median sample interval 1 ms does not " \
         "match sample_rate_hz=500" in result.output
     assert "(1 of 2 recordings)" in result.output
     assert {t.split("/")[0] for t in pd.read_csv(out)["trial"]} == {"good"}
-    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
-                                      "--out", str(out), "--strict"])
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--model",
+                                      "elastic_plastic", "--out", str(out), "--strict"])
     assert result.exit_code == 2 and "liar.csv: median sample interval" in result.output
 
 
@@ -65,8 +65,8 @@ def test_problems_found_on_reading_reach_the_output(tmp_path):
         lines[i] = ",".join(cells)
     path.write_text("\n".join(lines) + "\n")
     out = tmp_path / "fits.csv"
-    result = CliRunner().invoke(app, ["fit", str(path), "--model", "elastic_plastic",
-                                      "--out", str(out)])
+    result = CliRunner().invoke(app, ["fit", str(path), "--motions", "--model",
+                                      "elastic_plastic", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "m1.csv: [nonfinite] channel 'index_x': 20 NaN/inf sample(s)" in result.output
     assert pd.read_csv(out)["problems"].str.contains("channel 'index_x': 20 NaN/inf").all()
@@ -83,7 +83,8 @@ def test_fit_plots_fixes_and_ties(tmp_path):
     _measurement(tmp_path)
     out, plots = tmp_path / "fits.parquet", tmp_path / "png"
     result = CliRunner().invoke(app, [
-        "fit", str(tmp_path / "m1.csv"), "--model", "elastic_plastic", "--out", str(out),
+        "fit", str(tmp_path / "m1.csv"), "--motions", "--model", "elastic_plastic",
+        "--out", str(out),
         "--plot", str(plots), "--fix", "delay=0.02", "--tie", "ramp"])
     assert result.exit_code == 0, result.output
     frame = pd.read_parquet(out)
@@ -103,8 +104,8 @@ def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
     _measurement(tmp_path)
     (tmp_path / "broken.csv").write_text("t,x\n0,1\n")  # no sidecar: skipped, named
     out = tmp_path / "fits.csv"
-    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--model", "elastic_plastic",
-                                      "--out", str(out)])
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--model",
+                                      "elastic_plastic", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "broken.json: sidecar file is missing" in result.output
     frame = pd.read_csv(out)
@@ -113,14 +114,14 @@ def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
 
 
 def test_fit_with_nothing_to_fit_exits_2(tmp_path):
-    result = CliRunner().invoke(app, ["fit", str(tmp_path)])
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions"])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output
 
 
 def test_fit_on_a_dask_scheduler_equals_the_local_fit(tmp_path):
     distributed = __import__("pytest").importorskip("distributed")
     _measurement(tmp_path)
-    args = ["fit", str(tmp_path / "m1.csv"), "--model", "elastic_plastic",
+    args = ["fit", str(tmp_path / "m1.csv"), "--motions", "--model", "elastic_plastic",
             "--uncertainty", "laplace"]
     local, remote = tmp_path / "local.csv", tmp_path / "remote.csv"
     assert CliRunner().invoke(app, [*args, "--out", str(local)]).exit_code == 0

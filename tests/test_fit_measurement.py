@@ -95,22 +95,28 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     assert r2 == pytest.approx(res.r2[0], rel=1e-9)
 
 
-def test_cli_fits_whole_recordings(tmp_path, simulated, monkeypatch):
+def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     monkeypatch.chdir(tmp_path)
     write_recording(simulated[1], tmp_path / "one")
-    out = tmp_path / "whole.csv"
-    run = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--whole", "--channel",
-                                   "index_x", "--out", str(out), "--report"])
+    out, plots = tmp_path / "whole.csv", tmp_path / "png"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--channel", "index_x",
+                                   "--model", "relaxation2", "--fix", "drift=0",
+                                   "--plot", str(plots), "--out", str(out), "--report"])
     assert run.exit_code == 0, run.output
-    assert "[[BIC by model]]" in run.output and "[[Correlations]]" in run.output
+    assert "[[Correlations]]" in run.output
     import pandas as pd
 
     frame = pd.read_csv(out)
     assert frame["trial"].tolist() == ["one/index_x"]
     assert frame["k [N/mm]"].notna().all()
-    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--whole",
-                                   "--uncertainty", "laplace", "--out", str(out)])
-    assert bad.exit_code != 0 and "per-motion fits only" in bad.output
+    assert frame["drift_flag"].tolist() == ["fixed"] and frame["drift [N/s]"].tolist() == [0.0]
+    assert [p.name for p in plots.iterdir()] == ["one__index_x.png"]
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--uncertainty", "laplace",
+                                   "--out", str(out)])
+    assert bad.exit_code != 0 and "per-motion fits only: add --motions" in bad.output
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--fix", "stiffness=1",
+                                   "--out", str(out)])
+    assert bad.exit_code != 0 and "cannot fix ['stiffness']" in bad.output
 
 
 def test_session_rig_holds_the_motor_of_each_day(simulated):

@@ -147,12 +147,13 @@ def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
                     tmp_path / "m1")
     out = tmp_path / "fits.csv"
     runner = CliRunner()
-    result = runner.invoke(app, ["fit", str(tmp_path), "--model", MODEL, "--out", str(out),
+    result = runner.invoke(app, ["fit", str(tmp_path), "--motions", "--model", MODEL,
+                                 "--out", str(out),
                                  "--uncertainty", "laplace"])
     assert result.exit_code == 0, result.output
     frame = pd.read_csv(out)
     assert {"k_p16 [N/mm]", "k_p84 [N/mm]", "uq_method"} <= set(frame.columns)
-    bad = runner.invoke(app, ["fit", str(tmp_path), "--uncertainty", "mcmc"])
+    bad = runner.invoke(app, ["fit", str(tmp_path), "--motions", "--uncertainty", "mcmc"])
     assert bad.exit_code == 2 and "choose none, laplace, emcee or auto" in bad.output
 
 

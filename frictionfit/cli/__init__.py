@@ -26,7 +26,7 @@ _COMMANDS = (  # name, function, the one line in `frictionfit --help`
     ("demo", demo.demo, "The tour on the sample data: read, segment, fit, classify."),
     ("info", info.info, "Summarise a recording or a dataset and its problems."),
     ("plot", plot.plot, "PNG of a recording with its phases and missing samples."),
-    ("fit", fit.fit, "Fit the contact model to every motion and channel."),
+    ("fit", fit.fit, "Fit the contact model: each recording whole, or --motions."),
     ("features", classify.features, "Write a feature table, one row per recording."),
     ("train", classify.train, "Train a classifier and save it (skops)."),
     ("predict", classify.predict, "Classify recordings with a saved model."),

@@ -1,4 +1,4 @@
-"""``frictionfit fit``: fit the contact model to every motion and channel of recordings."""
+"""``frictionfit fit``: fit the contact model to recordings, whole or motion by motion."""
 
 from __future__ import annotations
 
@@ -10,98 +10,127 @@ import typer
 
 from frictionfit.cli._load import STRICT_HELP, check_writable
 
+#: Options that only per-motion fits (``--motions``) take.
+_PER_MOTION = ("--uncertainty", "--chains", "--tie", "--scheduler", "--n-starts", "--solver")
+
 
 def fit(
     paths: list[Path] = typer.Argument(..., help="Recordings (<name>.csv) or folders of them."),
-    model: str = typer.Option("auto", help="auto, or one of elastic_plastic, stick_slip, "
-                              "relaxation, rich."),
-    solver: str = typer.Option("lm", help="lm (frictionfit's batched LM, fastest), optx-lm, "
-                               "dogleg or gauss-newton (optimistix)."),
+    whole: bool = typer.Option(True, "--whole/--motions", help="--whole (default): fit each "
+                               "rubbing measurement whole, one row per recording and channel: "
+                               "one rig (motor timing), sensor (offset, drift, leak) and contact "
+                               "law, the law's state carried from stroke to stroke. --motions: "
+                               "fit every non-preparatory motion x channel on its own, one row "
+                               "per trial (single strokes, posteriors, Dask)."),
+    model: str = typer.Option("auto", help="Contact law. Whole: auto (with or without a static "
+                              "peak, by BIC), no_peak2, relaxation, relaxation2 or rich. "
+                              "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
+    channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
+                                      "default thumb_x and index_x)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
-    report: bool = typer.Option(False, help="Print the fit report of the first trial."),
-    uncertainty: str = typer.Option("none", help="Posterior per trial: none, laplace, emcee "
-                                    "or auto (Laplace; emcee where Laplace is doubtful)."),
-    chains: Path = typer.Option(None, help="With emcee: save the chains to this HDF5 file."),
-    plot: Path = typer.Option(None, help="Write a PNG of data vs. fit with residuals per "
-                              "trial into this folder."),
+    report: bool = typer.Option(False, help="Print the fit report of the first row."),
+    plot: Path = typer.Option(None, help="Write a PNG of data vs. fit with residuals per row "
+                              "into this folder."),
     stroke_mm: float = typer.Option(1.0, help="The rig's finger stroke in mm (stiffness is "
                                     "per mm of it)."),
-    n_starts: int = typer.Option(1, help="Starting points per trial (seeded multi-start)."),
-    seed: int = typer.Option(0, help="Seed of the multi-start jitter."),
     fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
                                   "(repeatable), e.g. --fix tau=0.1."),
     prior: list[str] = typer.Option([], help="NAME=CENTRE,SD: a Normal prior (repeatable); for "
                                     "a log-scale parameter CENTRE is the median and SD that of "
                                     "its log, e.g. --prior ramp=0.15,0.3 (default ramp=0.125,0.3"
                                     "); NAME=none: flat over its bounds."),
-    tie: list[str] = typer.Option([], help="NAME: share a parameter across the channels of "
-                                  "each motion (repeatable)."),
-    scheduler: str = typer.Option(None, help="Dask scheduler address (e.g. tcp://host:8786): "
-                                  "partition the trials across its workers; results equal the "
-                                  "local ones up to rounding."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
-    whole: bool = typer.Option(False, help="Fit each recording whole: one rig (motor timing), "
-                               "sensor (offset, drift, leak) and contact law per recording and "
-                               "channel, the law's state carried from stroke to stroke; "
-                               "--model then names the law (no_peak2, relaxation, relaxation2, "
-                               "rich, or auto: with or without a static peak by BIC)."),
-    channel: list[str] = typer.Option([], help="With --whole: channels to fit (repeatable; "
-                                      "default thumb_x and index_x)."),
+    uncertainty: str = typer.Option("none", help="--motions: posterior per trial: none, laplace,"
+                                    " emcee or auto (Laplace; emcee where Laplace is doubtful)."),
+    chains: Path = typer.Option(None, help="--motions with emcee: save the chains to this HDF5 "
+                                "file."),
+    solver: str = typer.Option("lm", help="--motions: lm (frictionfit's batched LM, fastest), "
+                               "optx-lm, dogleg or gauss-newton (optimistix)."),
+    n_starts: int = typer.Option(1, help="--motions: starting points per trial (seeded "
+                                 "multi-start)."),
+    seed: int = typer.Option(0, help="--motions: seed of the multi-start jitter."),
+    tie: list[str] = typer.Option([], help="--motions: NAME: share a parameter across the "
+                                  "channels of each motion (repeatable)."),
+    scheduler: str = typer.Option(None, help="--motions: Dask scheduler address (e.g. "
+                                  "tcp://host:8786): partition the trials across its workers; "
+                                  "results equal the local ones up to rounding."),
 ) -> None:
-    """Fit every non-preparatory motion x channel; one row per trial with status and stderr.
+    """Fit the contact model to recordings; one row per recording x channel (whole fits) or per
+    motion x channel (--motions), each with its status, values, stderr and flags.
 
-    Recordings at different sample rates are fitted on their own time grids; problems
-    found on reading are printed and kept in the 'problems' column; a recording whose
-    problems make its numbers wrong is skipped by name (--strict: stop)."""
-    import pandas as pd
-
-    from frictionfit.errors import FrictionfitError
-    from frictionfit.fit import fit_report, fit_trials
-
+    Problems found on reading are printed and kept in the 'problems' column; a recording whose
+    problems make its numbers wrong is skipped by name (--strict: stop). Per-motion fits of
+    recordings at different sample rates run on their own time grids."""
+    fixed = _fixes(fix)
+    priors = _priors(prior)
+    check_writable(out, "--out", (".csv", ".parquet"))
+    files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
+    given = dict(zip(_PER_MOTION, (uncertainty != "none", chains is not None, tie, scheduler,
+                                   n_starts != 1, solver != "lm"), strict=True))
+    if whole:
+        used = [name for name, value in given.items() if value]
+        if used:
+            raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
+                                     "--motions", param_hint="--whole")
+        _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
+                   priors, stroke_mm, _Output(out, plot, report))
+        return
+    if channel:
+        raise typer.BadParameter("per-motion fits take every channel", param_hint="--channel")
     if uncertainty not in ("none", "laplace", "emcee", "auto"):
         raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
                                  param_hint="--uncertainty")
     if scheduler and chains is not None:
         raise typer.BadParameter("one HDF5 file cannot take writes from many Dask workers",
                                  param_hint="--chains with --scheduler")
-    try:
-        fixed = {k: float(v) for k, v in (item.split("=", 1) for item in fix)}
-    except ValueError:
-        raise typer.BadParameter(f"{fix}: write NAME=VALUE, e.g. tau=0.1",
-                                 param_hint="--fix") from None
-    priors = _priors(prior)
-    check_writable(out, "--out", (".csv", ".parquet"))
-    files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    if whole:
-        unsupported = [name for name, used_ in (("--uncertainty", uncertainty != "none"),
-                       ("--plot", plot is not None), ("--tie", tie), ("--fix", fix),
-                       ("--scheduler", scheduler), ("--n-starts", n_starts != 1),
-                       ("--solver", solver != "lm")) if used_]
-        if unsupported:
-            raise typer.BadParameter(f"{', '.join(unsupported)} work on per-motion fits only",
-                                     param_hint="--whole")
-        law = model
-        _fit_whole(files, strict, law, tuple(channel) or ("thumb_x", "index_x"), priors,
-                   out, report)
-        return
+    options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
+                   fix=fixed, tie=tie, priors=priors)
+    _fit_motions(files, strict, options, _Posterior(uncertainty, chains, scheduler),
+                 _Output(out, plot, report))
+
+
+@dataclass(frozen=True)
+class _Output:
+    """Where the results go: the table, the PNG folder (or None), whether to print a report."""
+
+    table: Path
+    plots: Path | None
+    report: bool
+
+
+@dataclass(frozen=True)
+class _Posterior:
+    """The posterior asked of per-motion fits: method, chains file, Dask scheduler."""
+
+    method: str
+    chains: Path | None
+    scheduler: str | None
+
+
+def _fit_motions(files: list[Path], strict: bool, options: dict, posterior: _Posterior,
+                 output: _Output) -> None:
+    """``fit --motions``: every non-preparatory motion x channel, one batch per sample rate."""
+    import pandas as pd
+
+    from frictionfit.errors import FrictionfitError
+    from frictionfit.fit import fit_report, fit_trials
+
     batches, problems, used = _trials(files, strict)
     if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
     n_trials = sum(len(b.ids) for b in batches.values())
     typer.echo(f"fitting {n_trials} trials ({used} of {len(files)} recordings), "
-               f"model={model} ...")
-    options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
-                   fix=fixed, tie=tie, priors=priors)
+               f"model={options['model']} ...")
     frames, wall, first = [], 0.0, None
     for batch in batches.values():  # one batch per sample interval: each on its own time grid
         y, drive_input = np.asarray(batch.ys), (np.asarray(batch.t_outs),
                                                 np.asarray(batch.t_backs))
         try:
-            if scheduler:
+            if posterior.scheduler:
                 from frictionfit.distributed import fit_distributed
 
-                result = fit_distributed(y, batch.t, drive_input, scheduler=scheduler,
+                result = fit_distributed(y, batch.t, drive_input, scheduler=posterior.scheduler,
                                          groups=np.asarray(batch.groups), **options)
             else:
                 result = fit_trials(y, batch.t, drive_input, groups=np.asarray(batch.groups),
@@ -110,23 +139,28 @@ def fit(
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
         frame = result.to_frame(batch.ids)
-        if uncertainty != "none":
-            frame = frame.merge(_posterior(result, y, batch.t, drive_input, uncertainty, chains,
-                                           scheduler).to_frame(batch.ids), on="trial")
+        if posterior.method != "none":
+            frame = frame.merge(_posterior(result, y, batch.t, drive_input, posterior)
+                                .to_frame(batch.ids), on="trial")
         frame.insert(1, "problems", [problems.get(i.split("/")[0], "") for i in batch.ids])
         frames.append(frame)
         wall += result.wall_s
         first = first or result
-        if plot is not None:
-            from frictionfit.fit import plot_fit
-
-            plot.mkdir(parents=True, exist_ok=True)
-            for i, trial_id in enumerate(batch.ids):
-                plot_fit(result, i, batch.t, batch.ys[i],
-                         plot / (trial_id.replace("/", "__") + ".png"), title=trial_id)
-    _write(pd.concat(frames, ignore_index=True), out, "trials", wall)
-    if report:
+        _plots(result, [(batch.t, y_i) for y_i in batch.ys], batch.ids, output.plots)
+    _write(pd.concat(frames, ignore_index=True), output.table, "trials", wall)
+    if output.report:
         typer.echo(fit_report(first, 0))
+
+
+def _plots(result, curves: list[tuple], ids: list[str], folder: Path | None) -> None:
+    """One data-vs-fit PNG per row of ``result`` (``curves``: its ``(t, y)``) in ``folder``."""
+    if folder is None:
+        return
+    from frictionfit.fit import plot_fit
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, ((t, y), name) in enumerate(zip(curves, ids, strict=True)):
+        plot_fit(result, i, t, y, folder / (name.replace("/", "__") + ".png"), title=name)
 
 
 def _write(frame, out: Path, rows: str, wall_s: float) -> None:
@@ -154,24 +188,26 @@ def _usable(f: Path):
 
 
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
-               priors: dict | None, out: Path, report: bool) -> None:
+               fixed: dict, priors: dict | None, stroke_mm: float, output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each."""
     from frictionfit.errors import FrictionfitError
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
 
-    if priors and law == "auto":
-        raise typer.BadParameter("priors need one law: choose --model", param_hint="--prior")
+    if law == "auto" and (priors or stroke_mm != 1.0):
+        raise typer.BadParameter("priors and a stroke need one law: choose --model",
+                                 param_hint="--prior / --stroke-mm")
     try:
-        model = law if law == "auto" else MeasurementModel(law).with_priors(priors)
+        model = (law if law == "auto"
+                 else MeasurementModel(law, stroke_mm=stroke_mm).with_priors(priors))
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
     items, problems = [], []
     for f in files:
         try:
             rec = _usable(f)
-            found = [measurement_data(rec, ch) for ch in channels]
+            found = [measurement_data(rec, ch, stroke_mm=stroke_mm) for ch in channels]
         except (FrictionfitError, ValueError) as exc:
             if strict:
                 typer.echo(f"error: {exc}", err=True)
@@ -184,11 +220,16 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         typer.echo("error: no recording could be fitted from the given paths", err=True)
         raise typer.Exit(2)
     typer.echo(f"fitting {len(items)} recording channels whole, law={law} ...")
-    result = fit_measurements(items, model=model)
-    frame = result.to_frame([f"{d.name}/{d.channel}" for d in items])
+    try:
+        result = fit_measurements(items, model=model, fix=fixed)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--fix") from None
+    ids = [f"{d.name}/{d.channel}" for d in items]
+    frame = result.to_frame(ids)
     frame.insert(1, "problems", problems)
-    _write(frame, out, "recording channels", result.wall_s)
-    if report:
+    _write(frame, output.table, "recording channels", result.wall_s)
+    _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
+    if output.report:
         typer.echo(fit_report(result, 0))
 
 
@@ -241,16 +282,26 @@ def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[
     return batches, problems, used
 
 
-def _posterior(result, y, t, drive_input, method: str, chains: Path | None, scheduler: str | None):
-    """``sample_posterior`` locally, or spread over the Dask cluster at ``scheduler``."""
-    if scheduler:
+def _posterior(result, y, t, drive_input, posterior: _Posterior):
+    """``sample_posterior`` locally, or spread over the Dask cluster at its scheduler."""
+    if posterior.scheduler:
         from frictionfit.distributed import posterior_distributed
 
-        return posterior_distributed(result, y, t, drive_input, scheduler=scheduler,
-                                     method=method)
+        return posterior_distributed(result, y, t, drive_input, scheduler=posterior.scheduler,
+                                     method=posterior.method)
     from frictionfit.uncertainty import sample_posterior
 
-    return sample_posterior(result, y, t, drive_input, method=method, chains_path=chains)
+    return sample_posterior(result, y, t, drive_input, method=posterior.method,
+                            chains_path=posterior.chains)
+
+
+def _fixes(items: list[str]) -> dict[str, float]:
+    """``--fix`` values: name -> physical value."""
+    try:
+        return {k: float(v) for k, v in (item.split("=", 1) for item in items)}
+    except ValueError:
+        raise typer.BadParameter(f"{items}: write NAME=VALUE, e.g. tau=0.1",
+                                 param_hint="--fix") from None
 
 
 def _priors(items: list[str]) -> dict | None:
