@@ -8,11 +8,13 @@ rubbing direction (``thumb_x``, ``index_x``) is fitted at once by
 the law's state carried from stroke to stroke; ``decimate`` samples per point while the
 finger moves).
 Kept, in log10 where positive: ``k`` (N/mm per nominal mm of stroke), the static
-friction level ``f_static = f_kin + f_static_excess`` (N), ``relax_frac`` (1), ``tau``
-(s) and ``drag`` (N s/mm); never the sensor's offset, drift or leak, nor the motor's
-timing. ``with_stderr=True`` adds each
-one's standard error (of the log10 where logged). The lateral (y) channels are left to
-the measured quantities: the contact law does not describe them.
+friction level ``f_static = f_kin + f_static_excess`` (N), the held force ``f_held`` (N)
+and the stick-slip intensity ``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`) that the
+fit derives (:mod:`frictionfit.fit.derived`), ``relax_frac`` (1), ``tau`` (s) and ``drag``
+(N s/mm); never the sensor's offset, drift or leak, nor the motor's timing.
+``with_stderr=True`` adds each one's standard error (of the log10 where logged). The
+lateral (y) channels are left to the measured quantities: the contact law does not
+describe them.
 
 **Measured** (``measured=True``), per movement phase (``out``, ``back``), from the
 signal after a moving average of 9 samples, relative to its value ``x0`` at the
@@ -58,14 +60,16 @@ from frictionfit.models import PARAMS
 from frictionfit.recording import Recording
 from frictionfit.segmentation import Motion, moving_average
 
-__all__ = ["FITTED", "FITTED_CHANNELS", "MEASURED", "FittedFeatures", "PhysicalFeatures",
-           "measured_phase"]
+__all__ = ["FITTED", "FITTED_CHANNELS", "MEASURED", "SLIP_FLOOR_N", "FittedFeatures",
+           "PhysicalFeatures", "measured_phase"]
 
 #: Fitted quantities kept (log10 of the positive ones): the law's parameters, with the
 #: static friction level ``f_static = f_kin + f_static_excess`` in place of the two (where
 #: the force droops over the whole stroke, their split is not identified; their sum is).
-FITTED = ("k", "f_static", "relax_frac", "tau", "drag")
-_DERIVED_UNITS = {"f_static": "N"}
+FITTED = ("k", "f_static", "f_held", "slip_noise", "relax_frac", "tau", "drag")
+_DERIVED_UNITS = {"f_static": "N", "f_held": "N", "slip_noise": "N"}
+#: The smallest ``slip_noise`` told apart (N): the sensor's resolution, about 1 mN.
+SLIP_FLOOR_N = 1e-3
 #: Channels whose force follows the contact law (fitted); the lateral ones are measured only.
 FITTED_CHANNELS = ("thumb_x", "index_x")
 #: Measured quantities per phase and their units.
@@ -179,7 +183,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 7  # 7: whole-measurement fits, rig per session
+    _version = 8  # 8: with the held force and the stick-slip intensity
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
@@ -322,16 +326,20 @@ class PhysicalFeatures(RecordingFeatures):
             ok.add(Status.MAX_STEPS)
         for k, (i, ch) in enumerate(where):
             good = Status(int(res.status[k])) in ok
-            out[i][ch] = (np.asarray(self._fitted_row(res.values[k], res.stderr[k])) if good
+            out[i][ch] = (np.asarray(self._fitted_row(res.values[k], res.stderr[k],
+                                                      res.derived[k])) if good
                           else np.full(width, np.nan))
         return out
 
-    def _fitted_row(self, values: dict, stderr: dict) -> list[float]:
+    def _fitted_row(self, values: dict, stderr: dict, derived: dict) -> list[float]:
         """Log10 of the positive parameters (stderr of the log10 with ``with_stderr``)."""
         values, stderr = dict(values), dict(stderr)
         excess = values.get("f_static_excess", 0.0)
         values["f_static"] = values["f_kin"] + excess
         stderr["f_static"] = np.hypot(stderr["f_kin"], stderr.get("f_static_excess", 0.0))
+        for name, (v, se) in derived.items():
+            values[name], stderr[name] = v, se
+        values["slip_noise"] = max(values["slip_noise"], SLIP_FLOOR_N)
         row = []
         for p in FITTED:
             logged = p in _DERIVED_UNITS or PARAMS[p].transform == "loglogit"

@@ -62,7 +62,7 @@ def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _covariances(jtj: np.ndarray, redchi: np.ndarray):
     """Per trial (stacked, finite inputs): column scale, condition number of the scaled
-    ``J^T J``, covariance ``redchi pinv(J^T J)``, standard deviations, correlations."""
+    ``J^T J``, variances, correlations and the covariance ``redchi pinv(J^T J)``."""
     scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
     cond = scaled_condition(jtj)
     cov = redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
@@ -70,7 +70,7 @@ def _covariances(jtj: np.ndarray, redchi: np.ndarray):
     sd = np.sqrt(np.clip(var, 0.0, None))
     corr = cov / np.maximum(sd[:, :, None] * sd[:, None, :], 1e-300)
     corr[:, np.arange(sd.shape[1]), np.arange(sd.shape[1])] = 0.0
-    return scale, cond, var, corr
+    return scale, cond, var, corr, cov
 
 
 def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
@@ -153,8 +153,9 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     n_trials = u.shape[0]
     scale, var = np.full((n_trials, p), np.nan), np.full((n_trials, p), np.nan)
     corr, cond = np.zeros((n_trials, p, p)), np.full(n_trials, np.inf)
+    cov = np.full((n_trials, p, p), np.nan)
     if ok.any():
-        scale[ok], cond[ok], var[ok], corr[ok] = _covariances(jtj[ok], redchi[ok])
+        scale[ok], cond[ok], var[ok], corr[ok], cov[ok] = _covariances(jtj[ok], redchi[ok])
     pos = {j: jj for jj, j in enumerate(free)}
     sd = np.sqrt(np.where(var >= 0, var, np.nan))
     se = np.stack([np.abs(slope[j]) * sd[:, pos[j]] if j in pos else np.zeros(n_trials)
@@ -175,7 +176,7 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
         flags.append(_flags(model, values[i], stderrs[i], scale[i], corr[i], free,
                             set(fixed_names)))
     return dict(values=values, stderr=stderrs, flags=flags, chi2=chi2, redchi=redchi,
-                aic=aic, bic=bic, cond=cond, correl=correls)
+                aic=aic, bic=bic, cond=cond, correl=correls, cov=cov)
 
 
 def choose(bic: pd.DataFrame) -> list[str]:

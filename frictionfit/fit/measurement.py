@@ -32,6 +32,7 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import choose, statistics, status_of
+from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
@@ -456,7 +457,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
         n_steps=steps, u=list(u), direction=data[5], drive="measurement",
         drive_input=[(d.commands, d.signs) for d in items],
         init=[_physical_init(model, d.guess) for d in items],
-        correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model))
+        correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model),
+        derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
 
 
 def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:

@@ -48,6 +48,9 @@ class FitResult:
         Per trial, the starting point in physical units (the data-driven guess).
     correl : list of dict, optional
         Per trial, ``(name_a, name_b) -> correlation`` of the free parameters' estimates.
+    derived : list of dict, optional
+        Per trial, ``name -> (value, stderr)`` of quantities derived from the fit (whole
+        measurements: :data:`frictionfit.fit.derived.DERIVED`, in N).
     """
 
     model: list[str]
@@ -74,6 +77,7 @@ class FitResult:
     priors: dict | None = None
     init: list[dict] | None = field(default=None, repr=False)
     correl: list[dict] | None = field(default=None, repr=False)
+    derived: list[dict] | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         from collections import Counter
@@ -98,6 +102,9 @@ class FitResult:
                 row[f"{name} [{unit}]"] = v
                 row[f"{name}_stderr [{unit}]"] = self.stderr[i][name]
                 row[f"{name}_flag"] = self.flags[i].get(name, "")
+            for name, (v, se) in (self.derived[i] if self.derived is not None else {}).items():
+                row[f"{name} [N]"] = v
+                row[f"{name}_stderr [N]"] = se
             for stat in ("chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps"):
                 row[stat] = getattr(self, stat)[i]
             row["wall_s_per_trial"] = self.wall_s / max(self.n_trials, 1)
@@ -171,6 +178,10 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
                 else f"  <-- not identifiable: {flag}" if flag else "")
         init = f" (init = {result.init[i][name]:.6g})" if result.init is not None else ""
         lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{init}{warn}")
+    if result.derived is not None:
+        lines.append("[[Derived]]")
+        for name, (v, se) in result.derived[i].items():
+            lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g} N")
     if result.correl is not None:
         pairs = sorted(((a, b, r) for (a, b), r in result.correl[i].items()
                         if np.isfinite(r) and abs(r) >= min_correl), key=lambda x: -abs(x[2]))

@@ -1,0 +1,110 @@
+"""What a whole-measurement fit says beyond its parameters: the held force and the stick-slip.
+
+Two quantities per fitted channel, each with a standard error (``derived`` of a
+:class:`~frictionfit.fit.result.FitResult` from
+:func:`~frictionfit.fit.measurement.fit_measurements`):
+
+- ``f_held`` (N): half the step between the fitted channel's held levels at the two ends of
+  the stroke, ``HOLD_S`` after a movement that followed an opposite one: the law's held
+  force (what friction keeps of the load once the fingers stand still) plus half the
+  sensor's travel-proportional ``leak``. A hold cannot tell the two apart (both flip with the
+  finger's position), so their sum is what the data determine; the parameters apart trade
+  off. Computed from the fitted model on an out-back-out drive with the fitted rig, drift
+  removed; its standard error by the delta method from the fit's covariance.
+- ``slip_noise`` (N): the stick-slip intensity, which the smooth law leaves in the residual:
+  the RMS of the residual between a ``SLIP_BAND[0]``- and a ``SLIP_BAND[1]``-sample moving
+  average (about 40-110 Hz at 1 kHz) within ``SLIP_S`` after each command of the fitted
+  motions, less the share of the sensor's white noise in that band; the median over the
+  movements, its standard error from their spread. NaN where the movements were not fitted
+  sample by sample (``decimate > 1``) or too few were clean.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from frictionfit.models import MeasurementModel
+
+__all__ = ["DERIVED", "HOLD_S", "SLIP_BAND", "SLIP_S", "derived_quantities"]
+
+#: Name -> unit of the derived quantities.
+DERIVED = {"f_held": "N", "slip_noise": "N"}
+#: Hold (s) between the commands of the drive on which ``f_held`` is read (the protocol's).
+HOLD_S = 1.0
+#: Seconds after each command in which ``slip_noise`` is measured.
+SLIP_S = 0.25
+#: The moving averages (samples) whose difference is the band of ``slip_noise``.
+SLIP_BAND = (9, 25)
+#: Fewest clean movements for a ``slip_noise``.
+MIN_MOVEMENTS = 3
+
+
+@lru_cache(maxsize=16)
+def _held_fn(model: MeasurementModel):
+    """Jitted, vmapped ``(u, direction) -> (held step / 2, its gradient)``."""
+    drift = model.param_names.index("drift")
+    t = jnp.arange(0.0, 3 * HOLD_S, 1e-3)
+    commands, signs = jnp.array([0.0, HOLD_S, 2 * HOLD_S]), jnp.array([1.0, -1.0, 1.0])
+    back_end, out_end = round(2 * HOLD_S / 1e-3) - 1, t.size - 1
+
+    def held(u, direction):
+        pred = model.predict(u.at[drift].set(0.0), t, commands, signs, direction)
+        return 0.5 * (pred[out_end] - pred[back_end])
+
+    def value_and_grad(u, direction):
+        grad, value = jax.jacfwd(lambda v: (held(v, direction),) * 2, has_aux=True)(u)
+        return value, grad
+
+    return jax.jit(jax.vmap(value_and_grad))
+
+
+def _band_rms(x: np.ndarray) -> float:
+    """RMS of ``x`` between its two moving averages of :data:`SLIP_BAND` (edges dropped)."""
+    short, long = SLIP_BAND
+    band = (np.convolve(x, np.ones(short) / short, mode="same")
+            - np.convolve(x, np.ones(long) / long, mode="same"))[long:-long]
+    return float(np.sqrt(np.mean(band**2)))
+
+
+def _slip_noise(resid: np.ndarray, t: np.ndarray, weight: np.ndarray, commands: np.ndarray,
+                noise: float) -> tuple[float, float]:
+    """``slip_noise`` and its standard error from one item's data residuals (N)."""
+    short, long = SLIP_BAND
+    white = noise**2 * (1.0 / short - 1.0 / long)  # white noise's variance in the band
+    per_move = []
+    for c in commands:
+        window = (t >= c) & (t < c + SLIP_S) & (weight > 0)
+        idx = np.flatnonzero(window)
+        # sample by sample and without gaps, or the band means nothing
+        if idx.size < 3 * long or np.any(weight[idx] != 1.0) or np.any(np.diff(idx) != 1):
+            continue
+        per_move.append(np.sqrt(max(_band_rms(resid[idx]) ** 2 - white, 0.0)))
+    if len(per_move) < MIN_MOVEMENTS:
+        return np.nan, np.nan
+    return float(np.median(per_move)), float(np.std(per_move, ddof=1) / np.sqrt(len(per_move)))
+
+
+def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.ndarray,
+                       cov: np.ndarray, resid: np.ndarray, items: Sequence,
+                       direction: np.ndarray) -> list[dict[str, tuple[float, float]]]:
+    """Per item, name -> ``(value, stderr)`` of :data:`DERIVED` (module notes).
+
+    ``u``: full unconstrained optima; ``cov``: their covariance over ``free``; ``resid``: the
+    data residuals ``weight (prediction - y)`` (padded rows); ``items``: the
+    :class:`~frictionfit.fit.measurement.MeasurementData` fitted (with the commands the fit used).
+    """
+    value, grad = (np.asarray(a) for a in _held_fn(model)(jnp.asarray(u), jnp.asarray(direction)))
+    grad = grad[:, list(free)]
+    var = np.einsum("ni,nij,nj->n", grad, np.nan_to_num(cov), grad)
+    var = np.where(np.all(np.isfinite(cov), axis=(1, 2)), var, np.nan)
+    out = []
+    for i, d in enumerate(items):
+        slip = _slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
+        out.append({"f_held": (float(abs(value[i])), float(np.sqrt(max(var[i], 0.0)))),
+                    "slip_noise": slip})
+    return out

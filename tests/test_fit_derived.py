@@ -1,0 +1,67 @@
+"""Quantities derived from whole-measurement fits: the held force and the stick-slip intensity."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from frictionfit.fit.derived import SLIP_S, _band_rms
+from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit.simulation.measurements import simulate_measurements
+
+CHANNEL = "index_x"
+
+
+@pytest.fixture(scope="module")
+def recordings():
+    return simulate_measurements([(1, "carpet-1", 1), (1, "paper-2", 1), (2, "cushion-1", 1)],
+                                 seed=11)
+
+
+def _with_shaking(rec, amplitude: float, hz: float = 70.0):
+    """``rec`` with a sine of ``amplitude`` (N) on CHANNEL for SLIP_S after every command."""
+    samples = np.array(rec.samples, dtype=np.float64)
+    j = rec.channel_names.index(CHANNEL)
+    for e in rec.events:
+        if e.kind == "move":
+            window = (rec.t >= e.t) & (rec.t < e.t + SLIP_S)
+            samples[window, j] += amplitude * np.sin(2 * np.pi * hz * (rec.t[window] - e.t))
+    return dataclasses.replace(rec, samples=samples)
+
+
+def test_held_force_is_the_step_between_the_data_held_levels(recordings):
+    items = [measurement_data(r, CHANNEL) for r in recordings]
+    res = fit_measurements(items, model="relaxation2", progress=False)
+    for d, values, derived in zip(items, res.values, res.derived, strict=True):
+        held, se = derived["f_held"]
+        ends = []  # the data's level over the last 50 ms of every fitted hold, drift removed
+        for c in d.commands[3:]:
+            last = d.mask & (d.t > c - 0.05) & (d.t < c)
+            ends.append(np.mean(d.y[last] - values["drift"] * d.t[last]))
+        steps = 0.5 * np.abs(np.diff(ends))
+        assert held == pytest.approx(np.median(steps), rel=0.05)
+        assert 0 < se < 0.05 * held
+
+
+def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):
+    t = np.arange(0.0, SLIP_S, 1e-3)
+    amplitude = 0.1  # N
+    expected = _band_rms(amplitude * np.sin(2 * np.pi * 70.0 * t))
+    clean = [measurement_data(r, CHANNEL) for r in recordings]
+    shaken = [measurement_data(_with_shaking(r, amplitude), CHANNEL) for r in recordings]
+    res = fit_measurements(clean + shaken, model="relaxation2", progress=False)
+    slip = np.array([d["slip_noise"][0] for d in res.derived])
+    n = len(recordings)
+    assert np.all(slip[:n] < 0.3 * expected)  # the simulator's law has no stick-slip
+    np.testing.assert_allclose(slip[n:], expected, rtol=0.3)
+    se = np.array([d["slip_noise"][1] for d in res.derived])
+    assert np.all(np.isfinite(se)) and np.all(se < slip[n:].max())
+
+
+def test_slip_noise_is_nan_without_sample_by_sample_movements(recordings):
+    d = measurement_data(recordings[0], CHANNEL, decimate=2)
+    res = fit_measurements([d], model="relaxation2", progress=False, max_steps=30)
+    assert np.isnan(res.derived[0]["slip_noise"][0])
+    assert np.isfinite(res.derived[0]["f_held"][0])
