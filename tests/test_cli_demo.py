@@ -30,6 +30,6 @@ def test_demo_segments_fits_and_compares_with_truth(tmp_path):
     result = CliRunner().invoke(app, ["demo", "--data", str(DATA), "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     assert "segmented 16 motions" in result.output
-    assert "[[Variables]]" in result.output and "truth vs fit" in result.output
+    assert "[[Variables]]" in result.output and "truth/fit (index_x" in result.output
     assert (tmp_path / "fits.csv").exists()
     assert "accuracy on the sample data: " in result.output

