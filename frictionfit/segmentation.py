@@ -409,13 +409,7 @@ def segment(
     if not outs:
         raise RecordingError("no 'move p2' events and no movements found in the force: "
                              "cannot segment", path=rec.name)
-    t, grid = regrid(rec)
-    missing = ~np.isfinite(grid)
-    spike, stuck = suspect_samples(grid)
-    if mask_faults:
-        grid[spike | stuck[:, None]] = np.nan
-    if filter_n:
-        grid = moving_average(grid, filter_n)
+    t, grid, faults = _masked_grid(rec, mask_faults, filter_n)
     rate = rec.sample_rate_hz
     cmds = [m.command for m in outs]
     period = float(np.median(np.diff(cmds))) if len(cmds) > 1 else float(t[-1] - cmds[0] + pre_s)
@@ -429,24 +423,48 @@ def segment(
                 + period]
         if (drop_first and i == 0) or start < 0 or start + n > grid.shape[0] or not back:
             continue  # the preparatory motion, a truncated one, or one without its back stroke
-        t0 = t[0] + start / rate
-        ret = back[0]
-        phases = (
-            Phase("move_out", out.start - t0, out.stop - t0),
-            Phase("relax_out", out.stop - t0, ret.start - t0),
-            Phase("move_back", ret.start - t0, ret.stop - t0),
-            Phase("relax_back", ret.stop - t0, n / rate),
-        )
-        rows = slice(start, start + n)
-        found = {"missing sample(s)": int(missing[rows].any(axis=1).sum()),
-                 "spike(s) masked": int(spike[rows].sum()),
-                 "stuck sample(s) masked": int(stuck[rows].sum()),
-                 "boundary(ies) not seen in the force, nominal times used":
-                     sum(not mv.detected for mv in (out, ret))}
+        t0, ret, rows = t[0] + start / rate, back[0], slice(start, start + n)
         motions.append(Motion(
             rec.name, i, np.arange(n) / rate, grid[rows], rec.channels, rate,
-            out.command - t0, ret.command - t0, phases, {**rec.metadata, "motion": i},
-            t0=t0, movements=(out, ret),
-            problems=tuple(f"{count} {what}" for what, count in found.items() if count),
+            out.command - t0, ret.command - t0, _phases(out, ret, t0, n / rate),
+            {**rec.metadata, "motion": i}, t0=t0, movements=(out, ret),
+            problems=_problems(faults, rows, (out, ret)),
         ))
     return motions
+
+
+def _masked_grid(rec: Recording, mask_faults: bool, filter_n: int | None):
+    """The uniform grid of ``rec`` (see :func:`regrid`) with spikes and stuck rows set to NaN
+    (``mask_faults``), then filtered (``filter_n``); and the faults found before: missing
+    samples, spikes and stuck rows."""
+    t, grid = regrid(rec)
+    missing = ~np.isfinite(grid)
+    spike, stuck = suspect_samples(grid)
+    if mask_faults:
+        grid[spike | stuck[:, None]] = np.nan
+    if filter_n:
+        grid = moving_average(grid, filter_n)
+    return t, grid, (missing, spike, stuck)
+
+
+def _phases(out: Movement, ret: Movement, t0: float, end: float) -> tuple[Phase, ...]:
+    """The four phases of a motion from its two movements (s from the motion's start ``t0``,
+    the last ending at ``end``)."""
+    return (
+        Phase("move_out", out.start - t0, out.stop - t0),
+        Phase("relax_out", out.stop - t0, ret.start - t0),
+        Phase("move_back", ret.start - t0, ret.stop - t0),
+        Phase("relax_back", ret.stop - t0, end),
+    )
+
+
+def _problems(faults: tuple, rows: slice, movements: tuple[Movement, ...]) -> tuple[str, ...]:
+    """What ``Motion.problems`` lists for the grid rows ``rows``: counts of the faults found by
+    :func:`_masked_grid` and of the boundaries the force did not show."""
+    missing, spike, stuck = faults
+    found = {"missing sample(s)": int(missing[rows].any(axis=1).sum()),
+             "spike(s) masked": int(spike[rows].sum()),
+             "stuck sample(s) masked": int(stuck[rows].sum()),
+             "boundary(ies) not seen in the force, nominal times used":
+                 sum(not mv.detected for mv in movements)}
+    return tuple(f"{count} {what}" for what, count in found.items() if count)

@@ -1,11 +1,16 @@
-"""bench fit: the NumPy peer's model is the JAX model; the quick run has the agreed shape."""
+"""bench fit: the NumPy peers' models are the JAX models; the quick run has the agreed shape."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from frictionfit.bench.fit import numpy_predict, run
-from frictionfit.models import FAMILY, PARAMS
+from frictionfit.bench.measurement import numpy_residual
+from frictionfit.fit.measurement import _normal_fn, _stack, measurement_data
+from frictionfit.models import FAMILY, PARAMS, MeasurementModel
+from frictionfit.models.measurement import to_unconstrained
+from frictionfit.simulation.measurements import simulate_measurements
 
 VALUES = dict(offset=-0.2, k=12.0, f_kin=0.7, f_static_excess=0.3, slip_length=0.04,
               relax_frac=0.35, tau=0.12, relax_frac2=0.2, tau2=1.1, damping=4e-3,
@@ -38,3 +43,28 @@ def test_quick_run_reports_every_summary_number():
     assert set(meas["median_rel_error_by_param"]) >= {"k", "f_kin", "f_static_excess",
                                                       "relax_frac", "tau"}
     assert meas["median_rel_error_by_param"]["k"] < 0.2  # per-motion fits: ~50x off
+    numpy_peer = meas["peers"]["scipy-numpy"]  # scipy's LM on the objective in plain NumPy
+    assert numpy_peer["n_recordings"] == 2 and numpy_peer["s_per_recording"] > 0
+    assert abs(numpy_peer["cost_rel_diff"]) < 1e-4  # the same optimum (both stop at ftol 1e-6)
+
+
+@pytest.fixture(scope="module")
+def measurement():
+    rec, = simulate_measurements([(1, "carpet-1", 1)], seed=5)
+    return measurement_data(rec, "index_x")
+
+
+@pytest.mark.parametrize("law", ["relaxation2", "no_peak2"])
+def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
+    model = MeasurementModel(law)
+    _, residual = _normal_fn(model, tuple(range(model.n_params)))
+    residual = jax.jit(residual)
+    start = to_unconstrained(model, measurement.guess)
+    # Points near the guess, not the guess itself: at its round values (accel 0.1) the JAX
+    # drive can end a movement one ulp back, a reversal that resets the law's slip, and
+    # NumPy rounds the parameters' exp/tanh differently from XLA (there: a few 1e-9 relative).
+    for u in start + 0.3 * np.random.default_rng(0).standard_normal((3, start.size)):
+        data = tuple(jnp.asarray(a[0]) for a in _stack([measurement], u[None]))
+        ref = np.asarray(residual(jnp.asarray(u), data))
+        twin = numpy_residual(model, u, measurement)
+        np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))

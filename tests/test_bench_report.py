@@ -83,6 +83,21 @@ def test_failed_stage_is_listed_not_merged():
     assert "emcee_s_per_trial" not in bench["summary"]
 
 
+def test_whole_measurements_list_recovery_and_both_peers():
+    peer = {"n_recordings": 2, "s_per_recording": 9.0, "ours_s_per_recording": 0.25,
+            "speedup": 36.0, "cost_rel_diff": 2e-6}
+    meas = {"n_recordings": 8, "channel": "index_x", "recordings_per_s": 3.0, "compile_s": 20.0,
+            "converged_rate": 1.0, "converged_unflagged_rate": 0.875,
+            "median_rel_error_by_param": {"k": 0.05}, "median_signed_error_by_param": {"k": 0.01},
+            "flagged_rate_by_param": {"k": 0.0}, "stderr_coverage_by_param": {"k": 0.7},
+            "peers": {"scipy-jax": dict(peer, n_recordings=4, speedup=7.0), "scipy-numpy": peer}}
+    fit = dict(FIT, summary=dict(FIT["summary"], measurements=meas))
+    md = to_markdown(merge([fit]))
+    assert "| k | 0.05 | 0.01 | 0 | 0.7 |" in md
+    assert "| scipy-jax | 4 | 9 | 0.25 | 7 | 2e-06 |" in md
+    assert "| scipy-numpy | 2 | 9 | 0.25 | 36 | 2e-06 |" in md
+
+
 def test_cli_rejects_unknown_benchmark(tmp_path):
     result = CliRunner().invoke(app, ["bench", "speed", "--out", str(tmp_path)])
     assert result.exit_code == 2

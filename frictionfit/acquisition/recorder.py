@@ -234,18 +234,7 @@ def record(
     stop = stop or threading.Event()
     if not overwrite:
         refuse_existing(out)
-    rates = {s.rate_hz for s in streams}
-    if len(rates) != 1:
-        raise AcquisitionError(f"all sensors must run at one rate, got {sorted(rates)} Hz")
-    rate = rates.pop()
-    try:
-        for s in streams:
-            s.wait_first_frame()
-    except AcquisitionError:
-        for s in streams:
-            s.close()
-        raise
-    t0 = min(s.first_frame_time for s in streams)
+    rate, t0 = _first_frames(streams)
     writer = RecordingWriter(out, [c for s in streams for c in s.channels], rate,
                              {**(metadata or {}), "ports": [s.url for s in streams]},
                              overwrite=overwrite)
@@ -257,16 +246,11 @@ def record(
     stop_hook = on_start(t0, writer) if on_start is not None else None
     try:
         while not stop.is_set():
-            for i, s in enumerate(streams):
-                merger.add(i, *s.poll(t0))
-            live = [s.last_k for s in streams if s.connected and s.last_k is not None]
-            writer.append(*merger.ready(min(live) + 1 if live else np.inf))
+            _merge_polled(streams, merger, writer, t0)
             now = time.monotonic()
             if now - last_flush >= flush_s:
-                writer.flush(_summary(streams, writer, "recording", started))
+                _flush(streams, writer, started, on_progress)
                 last_flush = now
-                if on_progress is not None:
-                    on_progress(_summary(streams, writer, "recording", started))
             if duration_s is not None and now - t0 >= duration_s:
                 status = "complete"
                 break
@@ -274,11 +258,50 @@ def record(
     finally:
         if stop_hook is not None:
             stop_hook()
-        for i, s in enumerate(streams):
-            s.close()
-            merger.add(i, *s.poll(t0))
-        writer.append(*merger.ready(np.inf))
-        writer.write_rows()
+        _drain(streams, merger, writer, t0)
         summary = _summary(streams, writer, status, started)
         writer.close(summary)
     return summary
+
+
+def _first_frames(streams: Sequence[SensorStream]) -> tuple[float, float]:
+    """The streams' common rate (Hz) and ``t0``, the host time of the earliest first frame,
+    once every stream has sent one; a stream that sends none closes them all and raises."""
+    rates = {s.rate_hz for s in streams}
+    if len(rates) != 1:
+        raise AcquisitionError(f"all sensors must run at one rate, got {sorted(rates)} Hz")
+    try:
+        for s in streams:
+            s.wait_first_frame()
+    except AcquisitionError:
+        for s in streams:
+            s.close()
+        raise
+    return rates.pop(), min(s.first_frame_time for s in streams)
+
+
+def _merge_polled(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
+                  t0: float) -> None:
+    """Poll every stream and append the rows every connected stream has passed."""
+    for i, s in enumerate(streams):
+        merger.add(i, *s.poll(t0))
+    live = [s.last_k for s in streams if s.connected and s.last_k is not None]
+    writer.append(*merger.ready(min(live) + 1 if live else np.inf))
+
+
+def _flush(streams: Sequence[SensorStream], writer: RecordingWriter, started: float,
+           on_progress: Callable[[dict[str, Any]], None] | None) -> None:
+    """Write the rows so far and the sidecar's summary to disk; report progress."""
+    writer.flush(_summary(streams, writer, "recording", started))
+    if on_progress is not None:
+        on_progress(_summary(streams, writer, "recording", started))
+
+
+def _drain(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
+           t0: float) -> None:
+    """Close every stream, then merge and write what each had still buffered."""
+    for i, s in enumerate(streams):
+        s.close()
+        merger.add(i, *s.poll(t0))
+    writer.append(*merger.ready(np.inf))
+    writer.write_rows()

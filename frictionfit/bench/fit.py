@@ -27,7 +27,7 @@ from frictionfit.fit._problem import noise_scale
 from frictionfit.models import FAMILY, ContactModel, get_model
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
-__all__ = ["IDENTIFIABLE", "measure", "numpy_predict", "run"]
+__all__ = ["IDENTIFIABLE", "measure", "numpy_contact_force", "numpy_predict", "run"]
 
 #: Parameters a 2-s, 20 dB trial identifies (the others trade off with each other).
 IDENTIFIABLE = ("offset", "f_kin", "f_static_excess", "relax_frac", "tau", "delay",
@@ -39,14 +39,24 @@ def numpy_predict(model: ContactModel, u: np.ndarray, t: np.ndarray, t_out: floa
                   t_back: float, direction: float) -> np.ndarray:
     """Plain NumPy twin of ``model.predict`` (``drive="events"``): force (N) at times ``t`` (s)."""
     v = {p.name: p.to_physical(np.float64(u[i])) for i, p in enumerate(model.params)}
-    get = v.get
 
     def shape(s):
         return 0.5 - 0.5 * np.cos(np.pi * np.clip(s, 0.0, 1.0))
 
     x = model.stroke_mm * (shape((t - t_out - v["delay"]) / v["ramp"])
                            - shape((t - t_back - v["delay"]) / v["ramp"]))
-    dt = t[1] - t[0]
+    return v["offset"] + direction * numpy_contact_force(x, t[1] - t[0], v)
+
+
+def numpy_contact_force(x: np.ndarray, dt, v: dict) -> np.ndarray:
+    """Plain NumPy twin of :func:`~frictionfit.models.stick_slip.contact_force`: force (N)
+    for the drive ``x`` (mm), a per-sample Python loop.
+
+    ``dt``: one interval (s), or one per sample (``dt[0]`` any positive value); ``v``: the
+    law's physical values by name, an effect whose parameter is absent left out.
+    """
+    get = v.get
+    dt = np.broadcast_to(dt, x.shape)
     branches = []
     if get("relax_frac") is not None:
         branches.append([v["relax_frac"], v["tau"]])
@@ -55,7 +65,7 @@ def numpy_predict(model: ContactModel, u: np.ndarray, t: np.ndarray, t_out: floa
     coef = []
     for frac, tau in branches:
         h = dt / tau
-        g = 1.0 - 0.5 * h if h < 1e-8 else -np.expm1(-h) / max(h, 1e-300)
+        g = np.where(h < 1e-8, 1.0 - 0.5 * h, -np.expm1(-h) / np.maximum(h, 1e-300))
         coef.append((frac, np.exp(-h), g))
     k, f_kin, excess = v["k"], v["f_kin"], get("f_static_excess")
     damping = get("damping")
@@ -76,13 +86,14 @@ def numpy_predict(model: ContactModel, u: np.ndarray, t: np.ndarray, t_out: floa
         z_new = min(max(z_trial, -z_max), z_max)
         if excess is not None:
             s = s + abs(z_trial - z_new)
-        ws = [z_new + a * (w - z) - (z_new - z) * g for w, (_, a, g) in zip(ws, coef, strict=True)]
+        ws = [z_new + a[n] * (w - z) - (z_new - z) * g[n]
+              for w, (_, a, g) in zip(ws, coef, strict=True)]
         f = k * (z_new - sum(frac * w for w, (frac, _, _) in zip(ws, coef, strict=True)))
         if damping is not None:
-            f = f + damping * (z_new - z) / dt
+            f = f + damping * (z_new - z) / dt[n]
         force[n] = f
         z, x_old, direction_of_motion = z_new, x_new, new_dir
-    return v["offset"] + direction * force
+    return force
 
 
 def _rel_errors(model: ContactModel, u: np.ndarray, ts: TrialSet) -> dict[str, np.ndarray]:
@@ -175,8 +186,9 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     scipy-jax measured per-call overhead, 1.1x) and 4 per peer, without the grid;
     under a minute on this machine. ``summary["measurements"]``: truth recovery and
     speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 35
-    measurements, 8 with ``quick``). Timings are medians of interleaved
-    repetitions; ``compile_s`` is the first call of ours minus a steady one.
+    measurements, 8 with ``quick``), with its scipy peers on 4 of them (``scipy-numpy`` on
+    2). Timings are medians of interleaved repetitions; ``compile_s`` is the first call of
+    ours minus a steady one.
     """
     from frictionfit.bench.measurement import recovery
 

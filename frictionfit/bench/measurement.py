@@ -3,6 +3,11 @@
 Every simulator effect is on (motor profile with per-movement jitter, damping, drag,
 cross-talk, drift, AR(1) noise, transmission faults). Errors are relative to the
 index channel's truth in each sidecar (median over the fitted motions).
+
+Peers, on the first few recordings, from the same start: ``scipy.optimize.least_squares(
+method="lm")`` on the jitted JAX residual and Jacobian (``scipy-jax``), and on
+:func:`numpy_residual`, the same objective in plain NumPy (a per-sample Python loop of the
+contact law; finite-difference Jacobian) (``scipy-numpy``).
 """
 
 from __future__ import annotations
@@ -11,12 +16,15 @@ import time
 
 import numpy as np
 
+from frictionfit.bench._timing import alternate, timed
+from frictionfit.bench.fit import numpy_contact_force
 from frictionfit.errors import Status
-from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit.fit.measurement import MeasurementData, fit_measurements, measurement_data
+from frictionfit.models import MeasurementModel
 from frictionfit.simulation.materials import CLASSES
-from frictionfit.simulation.measurements import simulate_measurements
+from frictionfit.simulation.measurements import motor_profile, simulate_measurements
 
-__all__ = ["KEY_PARAMS", "recovery"]
+__all__ = ["KEY_PARAMS", "numpy_predict", "numpy_residual", "recovery"]
 
 #: The law parameters whose recovery is scored (the material's physics).
 KEY_PARAMS = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
@@ -33,11 +41,14 @@ def _truth(rec, name: str) -> float:
     return float(np.median([m["channels"]["index_x"][name] for m in motions]))
 
 
-def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int = 4) -> dict:
+def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int = 4,
+             n_numpy: int = 2) -> dict:
     """Fit ``n`` simulated measurements (every class in turn, session 1 then 2) twice; the second
     call is timed. Returns the summary dict of the ``measurements`` block of ``bench fit``:
     errors per parameter, the share of fits whose +-1 stderr interval holds the truth
-    (nominally 0.68; a parameter absent from the chosen law counts as not covered), speed."""
+    (nominally 0.68; a parameter absent from the chosen law counts as not covered), speed,
+    and ``peers``: scipy's LM on the first ``n_peer`` recordings, on the NumPy objective on
+    the first ``n_numpy`` (seconds per recording each)."""
     specs = [(1 + (i // len(CLASSES)) % 2, CLASSES[i % len(CLASSES)], 1 + i // (2 * len(CLASSES)))
              for i in range(n)]
     recs = simulate_measurements(specs, seed=seed)
@@ -57,7 +68,6 @@ def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int =
     covered = {name: np.array([abs(v.get(name, 0.0) - _truth(r, name)) <= e.get(name, np.nan)
                                for r, v, e in zip(recs, res.values, res.stderr, strict=True)])
                for name in KEY_PARAMS}
-    peer = _against_scipy_jax(items[:n_peer])
     return {
         "n_recordings": n, "channel": channel,
         "laws": {m: res.model.count(m) for m in sorted(set(res.model))},
@@ -72,21 +82,24 @@ def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int =
         "converged_unflagged_rate": float(np.mean((res.status == Status.CONVERGED) & unflagged)),
         "flagged_rate_by_param": {k: float(np.mean([k in f for f in res.flags]))
                                   for k in res.values[0]},
-        **peer,
+        "peers": _against_peers(items[:n_peer], n_numpy),
     }
 
 
-def _against_scipy_jax(items: list) -> dict:
-    """One fit of one law and shared timing on ``items``: ours (batched) against
-    ``scipy.optimize.least_squares(method="lm")`` on the same residual and Jacobian, jitted
-    JAX, one recording at a time. Seconds per recording of a second (compiled) call, and
-    the largest relative difference of the optimal cost (data and prior rows; positive:
-    ours is higher)."""
+def _against_peers(items: list, n_numpy: int) -> dict:
+    """One fit of one law, ours against ``scipy.optimize.least_squares(method="lm")`` from the
+    same starting points (the data's guess), one recording at a time: ``scipy-jax`` on the
+    jitted JAX residual and Jacobian, ``scipy-numpy`` on :func:`numpy_residual` with a
+    finite-difference Jacobian (on the first ``n_numpy`` items: seconds per recording).
+
+    Per peer: its recordings, seconds per recording (one call; ``scipy-jax`` compiled
+    before), ours on the same recordings (batched; the median of 3 calls after a compiling
+    one), the speed ratio, and the largest relative difference of the optimal cost (data and
+    prior rows, evaluated by :func:`numpy_residual`; positive: ours is higher)."""
     import jax
     from scipy.optimize import least_squares
 
     from frictionfit.fit.measurement import _normal_fn, _stack
-    from frictionfit.models import MeasurementModel
     from frictionfit.models.measurement import to_unconstrained
 
     model = MeasurementModel("relaxation2")
@@ -96,33 +109,77 @@ def _against_scipy_jax(items: list) -> dict:
     fun = jax.jit(residual)
     jac = jax.jit(jax.jacfwd(residual))
 
-    def scipy_all():
-        return [least_squares(lambda u, i=i: np.asarray(fun(u, _row(data, i))), u0[i],
-                              jac=lambda u, i=i: np.asarray(jac(u, _row(data, i))),
-                              method="lm", xtol=1e-8, ftol=1e-6).cost
-                for i in range(len(items))]
+    def scipy_jax(i):
+        return least_squares(lambda u: np.asarray(fun(u, _row(data, i))), u0[i],
+                             jac=lambda u: np.asarray(jac(u, _row(data, i))),
+                             method="lm", xtol=1e-8, ftol=1e-6).x
+
+    def scipy_numpy(i):
+        return least_squares(lambda u: numpy_residual(model, u, items[i]), u0[i],
+                             method="lm", xtol=1e-8, ftol=1e-6).x
+
+    def ours(rows):
+        return fit_measurements([items[i] for i in rows], model=model, timing="rig",
+                                progress=False).u
 
     def cost(u, i):
-        return 0.5 * float(np.sum(np.asarray(fun(np.asarray(u), _row(data, i))) ** 2))
+        return 0.5 * float(np.sum(numpy_residual(model, np.asarray(u), items[i]) ** 2))
 
-    def ours():
-        return fit_measurements(items, model=model, timing="rig", progress=False).u
+    def against_ours(fit_one, rows):
+        peer_s, peer_u = timed(lambda: [fit_one(i) for i in rows])
+        mine = alternate({"ours": lambda: ours(rows)}, repeats=3)["ours"]  # compiled first
+        our_s, our_u = mine["median_s"], mine["result"]
+        peer_cost = np.array([cost(u, i) for i, u in zip(rows, peer_u, strict=True)])
+        our_cost = np.array([cost(u, i) for i, u in zip(rows, our_u, strict=True)])
+        return {"n_recordings": len(rows), "s_per_recording": peer_s / len(rows),
+                "ours_s_per_recording": our_s / len(rows), "speedup": peer_s / our_s,
+                "cost_rel_diff": float(np.max((our_cost - peer_cost)
+                                              / np.maximum(peer_cost, 1e-300)))}
 
-    scipy_all()
-    ours()  # compiled
-    start = time.perf_counter()
-    peer_cost = np.array(scipy_all())
-    peer_s = time.perf_counter() - start
-    start = time.perf_counter()
-    our_u = ours()
-    our_s = time.perf_counter() - start
-    our_cost = np.array([cost(u, i) for i, u in enumerate(our_u)])
-    return {"n_recordings_peer": len(items), "scipy_jax_s_per_recording": peer_s / len(items),
-            "ours_s_per_recording_same_set": our_s / len(items),
-            "speedup_vs_scipy_jax": peer_s / our_s,
-            "cost_rel_diff_vs_scipy_jax": float(np.max((our_cost - peer_cost)
-                                                       / np.maximum(peer_cost, 1e-300)))}
+    every, first = range(len(items)), range(min(n_numpy, len(items)))
+    for i in every:
+        scipy_jax(i)  # compiled
+    return {"scipy-jax": against_ours(scipy_jax, every),
+            "scipy-numpy": against_ours(scipy_numpy, first)}
 
 
 def _row(data: tuple, i: int) -> tuple:
     return tuple(a[i] for a in data)
+
+
+def numpy_predict(model: MeasurementModel, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
+                  signs: np.ndarray, direction: float) -> np.ndarray:
+    """Plain NumPy twin of ``model.predict``: the channel (N) at increasing times ``t`` (s).
+
+    ``commands`` (s, increasing; each movement's own latency included where fitted) and
+    ``signs`` (+1 out, -1 back) of the ``move`` events. The law is
+    :func:`~frictionfit.bench.fit.numpy_contact_force`, one loop over the whole measurement,
+    so every stroke starts from the state the previous one left.
+    """
+    v = {p.name: p.to_physical(np.float64(u[i])) for i, p in enumerate(model.params)}
+    x, speed = _finger(v, t, commands, signs, model.stroke_mm)
+    dt = np.diff(t, prepend=2.0 * t[0] - t[1])
+    force = numpy_contact_force(x, dt, v) + v["drag"] * speed
+    return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
+
+
+def _finger(v: dict, t, commands, signs, stroke_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Finger travel (mm) and velocity (mm/s): the simulator's trapezoid movement
+    (:func:`~frictionfit.simulation.measurements.motor_profile`) of each command, ``delay``
+    after it, until the next command."""
+    last = np.searchsorted(commands, t, side="right") - 1  # -1: before the first command
+    done = np.r_[0.0, np.cumsum(signs)]
+    x, speed = np.zeros_like(t), np.zeros_like(t)
+    for i, (command, sign) in enumerate(zip(commands, signs, strict=True)):
+        now = last == i  # each movement ends before the next command
+        pos, vel = motor_profile(t[now], command + v["delay"], v["ramp"], v["accel"] * v["ramp"])
+        x[now] = stroke_mm * (done[i] + sign * pos)
+        speed[now] = stroke_mm * sign * vel
+    return x, speed
+
+
+def numpy_residual(model: MeasurementModel, u: np.ndarray, d: MeasurementData) -> np.ndarray:
+    """The residual :func:`~frictionfit.fit.measurement.fit_measurements` minimises, in plain
+    NumPy: weighted block residuals, then the prior rows scaled by the noise sd (N)."""
+    pred = numpy_predict(model, u, d.t, d.commands, d.signs, d.direction)
+    return np.concatenate([d.weight * (pred - d.y), d.noise * model.prior_residuals(u)])

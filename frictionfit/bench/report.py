@@ -149,18 +149,7 @@ def to_markdown(bench: Mapping) -> str:
     for name, stage in bench.get("stages", {}).items():
         meas = stage.get("summary", {}).get("measurements")
         if meas:
-            lines += [f"## {name}: whole measurements", "",
-                      f"{meas['n_recordings']} simulated measurements, {meas['channel']}: "
-                      f"{meas['recordings_per_s']:.3g} recordings/s (compile "
-                      f"{meas['compile_s']:.3g} s), converged {meas['converged_rate']:.3g}, "
-                      f"converged with no law parameter flagged "
-                      f"{meas['converged_unflagged_rate']:.3g}.", ""]
-            lines += _table(["parameter", "median |rel. error|", "median signed error",
-                             "flagged", "truth within +-1 stderr"],
-                            [[k, v, meas["median_signed_error_by_param"][k],
-                              meas["flagged_rate_by_param"].get(k),
-                              meas["stderr_coverage_by_param"].get(k)]
-                             for k, v in meas["median_rel_error_by_param"].items()])
+            lines += _measurements(name, meas)
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
                                        if not isinstance(v, (list, dict))])
@@ -186,6 +175,31 @@ def to_markdown(bench: Mapping) -> str:
                           "; ".join(d for d in (r["detail"], r["laplace_detail"]) if d)]
                          for r in bench["hard_cases"]["cases"]])
     return "\n".join(lines)
+
+
+def _measurements(stage: str, meas: Mapping) -> list[str]:
+    """The whole-measurement section of a stage: recovery per parameter, then the peers."""
+    lines = [f"## {stage}: whole measurements", "",
+             f"{meas['n_recordings']} simulated measurements, {meas['channel']}: "
+             f"{meas['recordings_per_s']:.3g} recordings/s (compile "
+             f"{meas['compile_s']:.3g} s), converged {meas['converged_rate']:.3g}, "
+             f"converged with no law parameter flagged "
+             f"{meas['converged_unflagged_rate']:.3g}.", ""]
+    lines += _table(["parameter", "median |rel. error|", "median signed error",
+                     "flagged", "truth within +-1 stderr"],
+                    [[k, v, meas["median_signed_error_by_param"][k],
+                      meas["flagged_rate_by_param"].get(k),
+                      meas["stderr_coverage_by_param"].get(k)]
+                     for k, v in meas["median_rel_error_by_param"].items()])
+    if meas.get("peers"):
+        lines += ["One law (relaxation2), one fit from the same start; ours batched over the "
+                  "peer's recordings. Cost difference: (ours - peer) / peer.", ""]
+        lines += _table(["peer", "recordings", "s / recording", "ours s / recording",
+                         "ours faster by", "cost difference"],
+                        [[peer, p["n_recordings"], p["s_per_recording"],
+                          p["ours_s_per_recording"], p["speedup"], p["cost_rel_diff"]]
+                         for peer, p in meas["peers"].items()])
+    return lines
 
 
 def plot_speed_vs_error(bench: Mapping, path: Path) -> None:

@@ -250,9 +250,7 @@ def evaluate(
     """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
     import pandas as pd
 
-    from frictionfit.classify import CLASSIFIERS, projection_for
-    from frictionfit.classify import evaluate as run
-    from frictionfit.errors import FrictionfitError
+    from frictionfit.classify import projection_for
 
     for path, option in ((out, "--out"), (confusion, "--confusion"),
                          (reliability, "--reliability"), (predictions, "--predictions")):
@@ -262,32 +260,11 @@ def evaluate(
         projection = projection_for(recordings, _projection(project))
     except ValueError as exc:
         _fail(str(exc))
-    if all_:
-        kind = dataset.partition(":")[0]
-        default_sets, default_protocols = ALL_DEFAULTS.get(kind, ALL_DEFAULTS["recordings"])
-        combos = [(f, c, p)
-                  for f in (feature_sets.split(";") if feature_sets else default_sets)
-                  for c in (classifiers.split(",") if classifiers else CLASSIFIERS)
-                  for p in (protocols.split(",") if protocols else default_protocols)]
-    else:
-        combos = [(features, classifier, protocol)]
+    combos = (_all_combos(dataset, feature_sets, classifiers, protocols) if all_
+              else [(features, classifier, protocol)])
     typer.echo(f"projection before the classifier: {projection or 'none'}")
-    rows = []
-    for f, c, p in combos:
-        try:
-            ev = run(recordings, f, c, p, target=target, seed=seed, project=projection,
-                     calibrate=calibrate, n_draws=draws)
-        except (FrictionfitError, ValueError, ImportError) as exc:
-            if not all_:
-                _fail(str(exc))
-            typer.echo(f"skipped {f} / {c} / {p}: {exc}", err=True)
-            continue
-        scores = ev.calibration()
-        rows.append({"features": f, "classifier": c, "protocol": p,
-                     "accuracy": ev.accuracy, "macro_f1": ev.macro_f1, **scores})
-        shown = "".join(f"  {k} {v:.3f}" for k, v in scores.items())
-        typer.echo(f"{f:>20} {c:>14} {p:>26}  accuracy {ev.accuracy:.3f}  "
-                   f"macro-F1 {ev.macro_f1:.3f}{shown}")
+    rows, ev = _score(recordings, combos, all_, target=target, seed=seed, project=projection,
+                      calibrate=calibrate, n_draws=draws)
     if not rows:
         _fail("no combination could be evaluated")
     table = pd.DataFrame(rows)
@@ -302,21 +279,68 @@ def evaluate(
                           f"{classifier} --protocol {protocol}"),
                        frame_markdown(table))
         typer.echo(f"added the scores to {results}")
-    if confusion is not None and not all_:
-        _plot_confusion(ev.confusion, confusion, f"{features} / {classifier} / {protocol}")
-        typer.echo(f"confusion matrix -> {confusion}")
-    if predictions is not None and not all_:
-        ev.predictions.to_csv(predictions, index=False)
-        typer.echo(f"predictions -> {predictions}")
-    if reliability is not None and not all_ and "probability" in ev.predictions:
-        from frictionfit.calibration import plot_reliability
-
-        plot_reliability(ev.predictions["probability"], ev.correct, reliability,
-                         f"{features} / {classifier} / {protocol}")
-        typer.echo(f"reliability diagram -> {reliability}")
     if not all_:
+        _evaluation_files(ev, f"{features} / {classifier} / {protocol}", confusion,
+                          predictions, reliability)
         typer.echo(f"macro-F1: {ev.macro_f1:.3f}")
         typer.echo(f"accuracy: {ev.accuracy:.3f}")
+
+
+def _all_combos(dataset: str, feature_sets: str | None, classifiers: str | None,
+                protocols: str | None) -> list[tuple[str, str, str]]:
+    """``evaluate --all``: every feature set x classifier x protocol of the lists given, or of
+    the dataset kind's :data:`ALL_DEFAULTS` and every classifier."""
+    from frictionfit.classify import CLASSIFIERS
+
+    kind = dataset.partition(":")[0]
+    default_sets, default_protocols = ALL_DEFAULTS.get(kind, ALL_DEFAULTS["recordings"])
+    return [(f, c, p)
+            for f in (feature_sets.split(";") if feature_sets else default_sets)
+            for c in (classifiers.split(",") if classifiers else CLASSIFIERS)
+            for p in (protocols.split(",") if protocols else default_protocols)]
+
+
+def _score(recordings: list, combos: list[tuple[str, str, str]], skip_failed: bool, **kw):
+    """Evaluate each ``(features, classifier, protocol)`` (``kw``: to
+    :func:`frictionfit.classify.evaluate`) and print its scores; one that fails stops the
+    command, or is skipped with a note (``skip_failed``). The score rows and the last
+    evaluation."""
+    from frictionfit.classify import evaluate as run
+    from frictionfit.errors import FrictionfitError
+
+    rows, ev = [], None
+    for f, c, p in combos:
+        try:
+            ev = run(recordings, f, c, p, **kw)
+        except (FrictionfitError, ValueError, ImportError) as exc:
+            if not skip_failed:
+                _fail(str(exc))
+            typer.echo(f"skipped {f} / {c} / {p}: {exc}", err=True)
+            continue
+        scores = ev.calibration()
+        rows.append({"features": f, "classifier": c, "protocol": p,
+                     "accuracy": ev.accuracy, "macro_f1": ev.macro_f1, **scores})
+        shown = "".join(f"  {k} {v:.3f}" for k, v in scores.items())
+        typer.echo(f"{f:>20} {c:>14} {p:>26}  accuracy {ev.accuracy:.3f}  "
+                   f"macro-F1 {ev.macro_f1:.3f}{shown}")
+    return rows, ev
+
+
+def _evaluation_files(ev, title: str, confusion: Path | None, predictions: Path | None,
+                      reliability: Path | None) -> None:
+    """The files asked for of one evaluation: confusion matrix, predictions and (with
+    probabilities) the reliability diagram."""
+    if confusion is not None:
+        _plot_confusion(ev.confusion, confusion, title)
+        typer.echo(f"confusion matrix -> {confusion}")
+    if predictions is not None:
+        ev.predictions.to_csv(predictions, index=False)
+        typer.echo(f"predictions -> {predictions}")
+    if reliability is not None and "probability" in ev.predictions:
+        from frictionfit.calibration import plot_reliability
+
+        plot_reliability(ev.predictions["probability"], ev.correct, reliability, title)
+        typer.echo(f"reliability diagram -> {reliability}")
 
 
 def _plot_confusion(matrix, path: Path, title: str) -> None:

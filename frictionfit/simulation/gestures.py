@@ -94,102 +94,127 @@ def _relaxing(t: np.ndarray, t_peak: float, tau: float, plateau: float) -> np.nd
     return plateau + (1 - plateau) * np.exp(-dt / tau)
 
 
+def _tips(T: int, names: list[str], weights: list[float], sig=None) -> tuple[np.ndarray, ...]:
+    """Blobs at the named fingertips, still: centres (T, K, 2), sigmas (K, 2), weights (K,)."""
+    pts = np.array([_TIPS[n] for n in names], dtype=float)
+    c = np.broadcast_to(pts, (T, len(names), 2)).copy()
+    s = np.array([sig or _TIP_SIGMA] * len(names), dtype=float)
+    return c, s, np.asarray(weights, dtype=float)
+
+
+def _flat_hand(T: int, palm_w: float, finger_w: float, heel: float = 0.0
+               ) -> tuple[np.ndarray, ...]:
+    """The palm (``heel`` cm towards the wrist), four proximal phalanges and four tips,
+    still: centres (T, 9, 2), sigmas (9, 2), weights (9,)."""
+    names = ["index", "middle", "ring", "little"]
+    tips = np.array([_TIPS[n] for n in names])
+    prox = tips * np.array([1.0, 0.55])
+    pts = np.vstack([[[_PALM[0], _PALM[1] - heel]], prox, tips])
+    sig = np.vstack([[_PALM[2:]], [_PROX_SIGMA] * 4, [_TIP_SIGMA] * 4])
+    w = np.array([palm_w] + [finger_w] * 8)
+    return np.broadcast_to(pts, (T, 9, 2)).copy(), sig, w
+
+
+def _poke(t: np.ndarray, p: dict) -> tuple:
+    d, v = p["duration"], p["variant"]
+    rise, hold, fall = 0.07 * d, 0.12 * d, 0.09 * d
+    env = _envelope(t, p["onset"], rise, hold, fall)
+    c, s, w = _tips(t.size, ["index", "middle"][: 1 + v], [1.0, 0.8][: 1 + v])
+    return c, s, 55.0 * p["force"] * env[:, None] * w, {"contact_s": rise + hold + fall}
+
+
+def _press(t: np.ndarray, p: dict) -> tuple:
+    d, onset = p["duration"], p["onset"]
+    rise, hold, fall = 0.3 * d, 1.3 * d, 0.3 * d
+    tau = 0.35 * d
+    env = _envelope(t, onset, rise, hold, fall) * _relaxing(t, onset + rise, tau, 0.6)
+    c, s, w = _flat_hand(t.size, 1.0, 0.7 + 0.3 * p["variant"])
+    return c, s, 22.0 * p["force"] * env[:, None] * w, {
+        "contact_s": rise + hold + fall, "relaxation_s": tau, "relax_plateau": 0.6}
+
+
+def _push(t: np.ndarray, p: dict) -> tuple:
+    d, a, onset = p["duration"], p["amplitude"], p["onset"]
+    rise, hold, fall = 0.7 * d, 0.6 * d, 0.25 * d
+    env = _envelope(t, onset, rise, hold, fall)
+    c, s, w = _flat_hand(t.size, 1.4, 0.35, heel=1.5)
+    slide = 1.8 * a * np.clip((t - onset) / (rise + hold), 0.0, 1.0)
+    c[:, :, 1] += slide[:, None]
+    return c, s, 28.0 * p["force"] * env[:, None] * w, {
+        "contact_s": rise + hold + fall, "slide_cm": 1.8 * a}
+
+
+def _grab(t: np.ndarray, p: dict) -> tuple:
+    d, a, onset = p["duration"], p["amplitude"], p["onset"]
+    rise, hold, fall = 0.35 * d, 0.8 * d, 0.3 * d
+    env = _envelope(t, onset, rise, hold, fall)
+    names = ["thumb", "index", "middle", "ring", "little"]
+    c, s, w = _tips(t.size, names, [1.2, 1.0, 1.0, 0.9, 0.7])
+    curl = np.clip((t - onset) / (rise + 0.5 * hold), 0.0, 1.0)[:, None, None]
+    c = c * (1 - 0.45 * a * curl)
+    palm = np.broadcast_to(np.array(_PALM[:2]), (t.size, 1, 2))
+    c = np.concatenate([palm, c], axis=1)
+    s = np.vstack([[_PALM[2:]], s])
+    w = np.concatenate([[0.35 + 0.3 * p["variant"]], w])
+    return c, s, 30.0 * p["force"] * env[:, None] * w, {
+        "contact_s": rise + hold + fall, "curl": 0.45 * a}
+
+
+def _pinch(t: np.ndarray, p: dict) -> tuple:
+    d, onset = p["duration"], p["onset"]
+    rise, hold, fall = 0.45 * d, 0.45 * d, 0.2 * d
+    env = _envelope(t, onset, rise, hold, fall)
+    gap0 = 7.0 * p["amplitude"]
+    close = np.clip((t - onset) / rise, 0.0, 1.0)
+    gap = gap0 - (gap0 - 1.6) * 0.5 * (1 - np.cos(np.pi * close))
+    mid = np.array([-3.5, 5.0])
+    c = np.empty((t.size, 2, 2))
+    c[:, 0] = mid + np.array([-0.6, -0.8]) * gap[:, None] / 2
+    c[:, 1] = mid + np.array([0.6, 0.8]) * gap[:, None] / 2
+    s = np.array([_TIP_SIGMA, _TIP_SIGMA])
+    w = np.array([1.0, 0.9])
+    return c, s, 40.0 * p["force"] * env[:, None] * w, {
+        "contact_s": rise + hold + fall, "start_gap_cm": gap0}
+
+
+def _scratch(t: np.ndarray, p: dict) -> tuple:
+    onset = p["onset"]
+    dur = 1.6 * p["duration"]
+    freq = 4.2 * p["frequency"]
+    env = _envelope(t, onset, 0.1, dur, 0.1)
+    c, s, w = _tips(t.size, ["index", "middle", "ring", "little"], [1.0, 1.0, 0.9, 0.7])
+    phase = 2 * np.pi * freq * np.clip(t - onset, 0.0, None)
+    c[:, :, 1] += (0.9 * p["amplitude"] * np.sin(phase))[:, None]
+    load = 18.0 * p["force"] * (env * (0.75 + 0.25 * np.cos(phase)))[:, None] * w
+    return c, s, load, {"contact_s": dur + 0.2, "repetition_hz": freq}
+
+
+def _stroke(t: np.ndarray, p: dict) -> tuple:
+    n = 1 + p["variant"]
+    period = 1.1 * p["duration"] / p["frequency"]
+    env = np.zeros(t.size)
+    sweep = np.zeros(t.size)
+    for k in range(n):
+        start = p["onset"] + k * period
+        env = env + _envelope(t, start, 0.12, 0.75 * period - 0.24, 0.12)
+        sweep = sweep + np.where((t >= start) & (t < start + period),
+                                 np.clip((t - start) / (0.75 * period), 0.0, 1.0), 0.0)
+    c, s, w = _flat_hand(t.size, 0.25, 1.0)
+    c[:, :, 1] += (9.0 * p["amplitude"] * (sweep - 0.5))[:, None]
+    return c, s, 9.0 * p["force"] * env[:, None] * w, {
+        "contact_s": (n - 0.25) * period, "repetition_hz": 1.0 / period, "strokes": n}
+
+
+#: Each gesture's blobs: ``(t, params) -> (centres, sigmas, loads, truth)``.
+_BLOBS = {"poke": _poke, "press": _press, "push": _push, "grab": _grab, "pinch": _pinch,
+          "scratch": _scratch, "stroke": _stroke}
+
+
 def _gesture_blobs(gesture: str, t: np.ndarray, p: dict) -> tuple[np.ndarray, ...]:
     """Blob centres (T, K, 2) and sigmas (K, 2) in hand cm, loads (T, K) in kPa, and truth."""
-    T = t.size
-    f, d, a, fr, v = p["force"], p["duration"], p["amplitude"], p["frequency"], p["variant"]
-    onset = p["onset"]
-    truth: dict = {}
-
-    def static(names, weights, sig=None):
-        pts = np.array([_TIPS[n] for n in names], dtype=float)
-        c = np.broadcast_to(pts, (T, len(names), 2)).copy()
-        s = np.array([sig or _TIP_SIGMA] * len(names), dtype=float)
-        return c, s, np.asarray(weights, dtype=float)
-
-    def flat_hand(palm_w, finger_w, heel=0.0):
-        names = ["index", "middle", "ring", "little"]
-        tips = np.array([_TIPS[n] for n in names])
-        prox = tips * np.array([1.0, 0.55])
-        pts = np.vstack([[[_PALM[0], _PALM[1] - heel]], prox, tips])
-        sig = np.vstack([[_PALM[2:]], [_PROX_SIGMA] * 4, [_TIP_SIGMA] * 4])
-        w = np.array([palm_w] + [finger_w] * 8)
-        return np.broadcast_to(pts, (T, 9, 2)).copy(), sig, w
-
-    if gesture == "poke":
-        rise, hold, fall = 0.07 * d, 0.12 * d, 0.09 * d
-        env = _envelope(t, onset, rise, hold, fall)
-        c, s, w = static(["index", "middle"][: 1 + v], [1.0, 0.8][: 1 + v])
-        load = 55.0 * f * env[:, None] * w
-        truth.update(contact_s=rise + hold + fall)
-    elif gesture == "press":
-        rise, hold, fall = 0.3 * d, 1.3 * d, 0.3 * d
-        tau = 0.35 * d
-        env = _envelope(t, onset, rise, hold, fall) * _relaxing(t, onset + rise, tau, 0.6)
-        c, s, w = flat_hand(1.0, 0.7 + 0.3 * v)
-        load = 22.0 * f * env[:, None] * w
-        truth.update(contact_s=rise + hold + fall, relaxation_s=tau, relax_plateau=0.6)
-    elif gesture == "push":
-        rise, hold, fall = 0.7 * d, 0.6 * d, 0.25 * d
-        env = _envelope(t, onset, rise, hold, fall)
-        c, s, w = flat_hand(1.4, 0.35, heel=1.5)
-        slide = 1.8 * a * np.clip((t - onset) / (rise + hold), 0.0, 1.0)
-        c[:, :, 1] += slide[:, None]
-        load = 28.0 * f * env[:, None] * w
-        truth.update(contact_s=rise + hold + fall, slide_cm=1.8 * a)
-    elif gesture == "grab":
-        rise, hold, fall = 0.35 * d, 0.8 * d, 0.3 * d
-        env = _envelope(t, onset, rise, hold, fall)
-        names = ["thumb", "index", "middle", "ring", "little"]
-        c, s, w = static(names, [1.2, 1.0, 1.0, 0.9, 0.7])
-        curl = np.clip((t - onset) / (rise + 0.5 * hold), 0.0, 1.0)[:, None, None]
-        c = c * (1 - 0.45 * a * curl)
-        palm = np.broadcast_to(np.array(_PALM[:2]), (T, 1, 2))
-        c = np.concatenate([palm, c], axis=1)
-        s = np.vstack([[_PALM[2:]], s])
-        w = np.concatenate([[0.35 + 0.3 * v], w])
-        load = 30.0 * f * env[:, None] * w
-        truth.update(contact_s=rise + hold + fall, curl=0.45 * a)
-    elif gesture == "pinch":
-        rise, hold, fall = 0.45 * d, 0.45 * d, 0.2 * d
-        env = _envelope(t, onset, rise, hold, fall)
-        gap0 = 7.0 * a
-        close = np.clip((t - onset) / rise, 0.0, 1.0)
-        gap = gap0 - (gap0 - 1.6) * 0.5 * (1 - np.cos(np.pi * close))
-        mid = np.array([-3.5, 5.0])
-        c = np.empty((T, 2, 2))
-        c[:, 0] = mid + np.array([-0.6, -0.8]) * gap[:, None] / 2
-        c[:, 1] = mid + np.array([0.6, 0.8]) * gap[:, None] / 2
-        s = np.array([_TIP_SIGMA, _TIP_SIGMA])
-        w = np.array([1.0, 0.9])
-        load = 40.0 * f * env[:, None] * w
-        truth.update(contact_s=rise + hold + fall, start_gap_cm=gap0)
-    elif gesture == "scratch":
-        dur = 1.6 * d
-        freq = 4.2 * fr
-        env = _envelope(t, onset, 0.1, dur, 0.1)
-        c, s, w = static(["index", "middle", "ring", "little"], [1.0, 1.0, 0.9, 0.7])
-        phase = 2 * np.pi * freq * np.clip(t - onset, 0.0, None)
-        c[:, :, 1] += (0.9 * a * np.sin(phase))[:, None]
-        load = 18.0 * f * (env * (0.75 + 0.25 * np.cos(phase)))[:, None] * w
-        truth.update(contact_s=dur + 0.2, repetition_hz=freq)
-    elif gesture == "stroke":
-        n = 1 + v
-        period = 1.1 * d / fr
-        env = np.zeros(T)
-        sweep = np.zeros(T)
-        for k in range(n):
-            start = onset + k * period
-            env = env + _envelope(t, start, 0.12, 0.75 * period - 0.24, 0.12)
-            sweep = sweep + np.where((t >= start) & (t < start + period),
-                                     np.clip((t - start) / (0.75 * period), 0.0, 1.0), 0.0)
-        c, s, w = flat_hand(0.25, 1.0)
-        c[:, :, 1] += (9.0 * a * (sweep - 0.5))[:, None]
-        load = 9.0 * f * env[:, None] * w
-        truth.update(contact_s=(n - 0.25) * period, repetition_hz=1.0 / period, strokes=n)
-    else:
+    if gesture not in _BLOBS:
         raise ValueError(f"unknown gesture {gesture!r}; choose from {GESTURES}")
-    return c, s, load, truth
+    return _BLOBS[gesture](t, p)
 
 
 def render_gesture(
@@ -296,26 +321,34 @@ def simulate_gestures(
             persons[i] = _person(seed, i)
         rng = np.random.default_rng([seed, i, GESTURES.index(g), r])
         frames, truth = render_gesture(g, persons[i], rng)
-        meta = {
-            "synthetic": True,
-            "source": "frictionfit.simulation.gestures (SYNTHETIC, not measured)",
-            "seed": seed,
-            "sensor": "20x20 textile pressure matrix, 1 cm pitch, 50 frames/s",
-            "label": g, "person": f"p{i}", "repetition": r, "gesture": g,
-        }
-        person_truth = {k: v for k, v in persons[i].items() if k != "habits"}
-        path = out / f"p{i}_{g}_{r:02d}.npz"
-        np.savez_compressed(
-            path,
-            frames=frames.astype(np.float32),
-            rate_hz=np.float64(FRAME_RATE_HZ),
-            label=g,
-            person=f"p{i}",
-            repetition=r,
-            gesture=g,
-            unit="kPa",
-            metadata=json.dumps(meta),
-            truth=json.dumps({**truth, "person": person_truth}),
-        )
-        paths.append(path)
+        paths.append(_write_gesture(out / f"p{i}_{g}_{r:02d}.npz", frames, truth, seed,
+                                    i, persons[i], g, r))
     return paths
+
+
+def _write_gesture(path: Path, frames: np.ndarray, truth: dict, seed: int, i: int,
+                   person: dict, gesture: str, r: int) -> Path:
+    """Write one simulated gesture of person ``i``, repetition ``r``, to ``path`` (the fields
+    of :func:`simulate_gestures`); the truth also holds the person's parameters (not the
+    habits)."""
+    meta = {
+        "synthetic": True,
+        "source": "frictionfit.simulation.gestures (SYNTHETIC, not measured)",
+        "seed": seed,
+        "sensor": "20x20 textile pressure matrix, 1 cm pitch, 50 frames/s",
+        "label": gesture, "person": f"p{i}", "repetition": r, "gesture": gesture,
+    }
+    person_truth = {k: v for k, v in person.items() if k != "habits"}
+    np.savez_compressed(
+        path,
+        frames=frames.astype(np.float32),
+        rate_hz=np.float64(FRAME_RATE_HZ),
+        label=gesture,
+        person=f"p{i}",
+        repetition=r,
+        gesture=gesture,
+        unit="kPa",
+        metadata=json.dumps(meta),
+        truth=json.dumps({**truth, "person": person_truth}),
+    )
+    return path
