@@ -186,10 +186,11 @@ def _measurements(stage: str, meas: Mapping) -> list[str]:
              f"converged with no law parameter flagged "
              f"{meas['converged_unflagged_rate']:.3g}.", ""]
     lines += _table(["parameter", "median |rel. error|", "median signed error",
-                     "flagged", "truth within +-1 stderr"],
+                     "flagged", "truth within +-1 stderr", "within +-1.96 stderr"],
                     [[k, v, meas["median_signed_error_by_param"][k],
                       meas["flagged_rate_by_param"].get(k),
-                      meas["stderr_coverage_by_param"].get(k)]
+                      meas["stderr_coverage_by_param"].get(k),
+                      meas.get("stderr_coverage95_by_param", {}).get(k)]
                      for k, v in meas["median_rel_error_by_param"].items()])
     if meas.get("peers"):
         lines += ["One law (relaxation2), one fit from the same start; ours batched over the "
