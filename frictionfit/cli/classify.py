@@ -274,9 +274,12 @@ def evaluate(
     if results is not None:
         from frictionfit.bench.report import frame_markdown, record_results
 
+        lists = (("--feature-sets", feature_sets), ("--classifiers", classifiers),
+                 ("--protocols", protocols))
         record_results(results, f"frictionfit evaluate --dataset {dataset}"
-                       + (" --all" if all_ else f" --features {features} --classifier "
-                          f"{classifier} --protocol {protocol}"),
+                       + (" --all" + "".join(f' {o} "{v}"' for o, v in lists if v) if all_
+                          else f" --features {features} --classifier {classifier} --protocol "
+                          f"{protocol}"),
                        frame_markdown(table))
         typer.echo(f"added the scores to {results}")
     if not all_:
