@@ -21,7 +21,13 @@ __all__ = ["Actuator", "DynamixelActuator", "SimulatedGripper"]
 
 
 class Actuator(abc.ABC):
-    """What the rubbing protocol needs from a finger drive."""
+    """What the rubbing protocol needs from a finger drive.
+
+    ``counts_per_revolution`` is the encoder's resolution when the positions are
+    encoder counts of a rotary drive, None otherwise.
+    """
+
+    counts_per_revolution: int | None = None
 
     @abc.abstractmethod
     def move_to(self, position: float) -> None:
@@ -97,11 +103,21 @@ class DynamixelActuator(Actuator):
         Allowed goal positions in counts (Min/Max Position Limit; 0-4095 by default).
     timeout_s : float
         How long to wait for a status packet.
+    position_timeout_s : float
+        How long :meth:`position` waits for its reply: short, because the protocol
+        polls the position between commands and a lost reply delays the next command
+        by this much. The DynamixelSDK waits about 35 ms for a short reply at 57 600
+        baud with the adapter's default 16 ms latency.
     """
 
+    counts_per_revolution = 4096
+
     def __init__(self, url: str, servo_id: int = 1, *, baudrate: int = 57_600,
-                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5) -> None:
+                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5,
+                 position_timeout_s: float = 0.1) -> None:
         self.url, self.servo_id, self.limits, self.timeout_s = url, servo_id, limits, timeout_s
+        self.position_timeout_s = position_timeout_s
+        self._unanswered = False
         try:
             self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.005)
             self.port.reset_input_buffer()
@@ -109,12 +125,18 @@ class DynamixelActuator(Actuator):
             raise AcquisitionError(f"{url}: cannot open the servo's port: {exc}") from None
         self.parser = PacketParser()
 
-    def _exchange(self, instruction: int, params: bytes, what: str) -> bytes:
+    def _exchange(self, instruction: int, params: bytes, what: str,
+                  timeout_s: float | None = None) -> bytes:
+        timeout_s = self.timeout_s if timeout_s is None else timeout_s
         try:
+            if self._unanswered:  # a late reply to the last request would pass for this one's
+                self.port.reset_input_buffer()
+                self.parser.clear()
+                self._unanswered = False
             self.port.write(Packet(self.servo_id, instruction, params).encode())
         except (serial.SerialException, OSError) as exc:
             raise AcquisitionError(f"{self.url}: cannot write to the servo: {exc}") from None
-        deadline = time.monotonic() + self.timeout_s
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             chunk = self.port.read(max(1, self.port.in_waiting))
             for pkt in self.parser.feed(chunk):
@@ -128,8 +150,9 @@ class DynamixelActuator(Actuator):
                         f"{self.url}: servo {self.servo_id} refused {what}: error {number} "
                         f"({_ERRORS.get(number, 'unknown')}){alert}")
                 return pkt.data
+        self._unanswered = True
         raise AcquisitionError(f"{self.url}: no status from servo {self.servo_id} for {what} "
-                               f"within {self.timeout_s} s (wrong ID, baud rate or protocol?)")
+                               f"within {timeout_s} s (wrong ID, baud rate or protocol?)")
 
     def ping(self) -> int:
         """The model number (e.g. 1020 for an XM430-W350)."""
@@ -154,7 +177,8 @@ class DynamixelActuator(Actuator):
         self.write(GOAL_POSITION, goal, 4)
 
     def position(self) -> float:
-        data = self._exchange(READ, struct.pack("<HH", PRESENT_POSITION, 4), "READ position")
+        data = self._exchange(READ, struct.pack("<HH", PRESENT_POSITION, 4), "READ position",
+                              self.position_timeout_s)
         if len(data) != 4:
             raise AcquisitionError(f"{self.url}: position reply has {len(data)} bytes, not 4")
         return float(struct.unpack("<i", data)[0])
