@@ -79,8 +79,21 @@ def servo():
     actuator.close()
 
 
+def _answer(servo, raw):
+    """Put ``raw`` on the loop right after the servo's next request, as a servo would."""
+    send = servo.port.write
+
+    def request(data):
+        servo.port.write = send
+        written = send(data)
+        send(raw)
+        return written
+
+    servo.port.write = request
+
+
 def _reply(servo, error=0, data=b""):
-    servo.port.write(Packet(1, STATUS, bytes([error]) + data).encode())
+    _answer(servo, Packet(1, STATUS, bytes([error]) + data).encode())
 
 
 def test_dynamixel_on_loop(servo):
@@ -88,7 +101,7 @@ def test_dynamixel_on_loop(servo):
     assert servo.ping() == 1020
     _reply(servo)
     servo.move_to(2048)
-    servo.port.write(bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
+    _answer(servo, bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
     assert servo.position() == -500.0
 
 
@@ -97,7 +110,7 @@ def test_dynamixel_on_loop(servo):
     ("FF FF FD 00 01 04 00 55 80 A2 8F", "alert: hardware error latched"),
 ])
 def test_dynamixel_errors_in_words(servo, hexbytes, words):
-    servo.port.write(bytes.fromhex(hexbytes))
+    _answer(servo, bytes.fromhex(hexbytes))
     with pytest.raises(AcquisitionError, match=words):
         servo.move_to(100)
 
@@ -118,7 +131,7 @@ def test_a_late_reply_is_dropped_not_taken_for_the_next():
             with pytest.raises(AcquisitionError, match="no status .* READ position within 0.05"):
                 servo.position()
             time.sleep(0.2)  # the late reply (2048) is waiting in the port
-            servo.move_to(1000)  # would take that reply for its status, then be off by one
+            servo.move_to(1000)  # kept, it would pass for this status: all later off by one
             assert servo.position() == 1000.0 and servo.position() == 1000.0
         finally:
             servo.close()

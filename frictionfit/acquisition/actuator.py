@@ -24,10 +24,12 @@ class Actuator(abc.ABC):
     """What the rubbing protocol needs from a finger drive.
 
     ``counts_per_revolution`` is the encoder's resolution when the positions are
-    encoder counts of a rotary drive, None otherwise.
+    encoder counts of a rotary drive, None otherwise. ``position_timeout_s`` is the
+    longest :meth:`position` waits for the hardware (0 when it does not wait).
     """
 
     counts_per_revolution: int | None = None
+    position_timeout_s: float = 0.0
 
     @abc.abstractmethod
     def move_to(self, position: float) -> None:
@@ -105,19 +107,18 @@ class DynamixelActuator(Actuator):
         How long to wait for a status packet.
     position_timeout_s : float
         How long :meth:`position` waits for its reply: short, because the protocol
-        polls the position between commands and a lost reply delays the next command
-        by this much. The DynamixelSDK waits about 35 ms for a short reply at 57 600
-        baud with the adapter's default 16 ms latency.
+        reads the position between commands and starts no read closer than this to a
+        command. The DynamixelSDK waits about 35 ms for a short reply at 57 600 baud
+        with the adapter's default 16 ms latency.
     """
 
     counts_per_revolution = 4096
 
     def __init__(self, url: str, servo_id: int = 1, *, baudrate: int = 57_600,
                  limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5,
-                 position_timeout_s: float = 0.1) -> None:
+                 position_timeout_s: float = 0.05) -> None:
         self.url, self.servo_id, self.limits, self.timeout_s = url, servo_id, limits, timeout_s
         self.position_timeout_s = position_timeout_s
-        self._unanswered = False
         try:
             self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.005)
             self.port.reset_input_buffer()
@@ -129,10 +130,10 @@ class DynamixelActuator(Actuator):
                   timeout_s: float | None = None) -> bytes:
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
         try:
-            if self._unanswered:  # a late reply to the last request would pass for this one's
-                self.port.reset_input_buffer()
-                self.parser.clear()
-                self._unanswered = False
+            # The servo speaks only when asked, so what waits now is a late reply to an
+            # earlier request; kept, it would pass for this one's and shift every later one.
+            self.port.reset_input_buffer()
+            self.parser.clear()
             self.port.write(Packet(self.servo_id, instruction, params).encode())
         except (serial.SerialException, OSError) as exc:
             raise AcquisitionError(f"{self.url}: cannot write to the servo: {exc}") from None
@@ -150,7 +151,6 @@ class DynamixelActuator(Actuator):
                         f"{self.url}: servo {self.servo_id} refused {what}: error {number} "
                         f"({_ERRORS.get(number, 'unknown')}){alert}")
                 return pkt.data
-        self._unanswered = True
         raise AcquisitionError(f"{self.url}: no status from servo {self.servo_id} for {what} "
                                f"within {timeout_s} s (wrong ID, baud rate or protocol?)")
 
