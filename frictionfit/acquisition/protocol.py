@@ -65,6 +65,16 @@ class PositionLog:
     reply (s); a failed read is counted, with the last one's words, and never stops anything.
 
     Filled by the protocol's thread while the writer takes snapshots (:meth:`to_json`).
+
+    Examples
+    --------
+    >>> log = PositionLog(50.0, counts_per_revolution=4096)
+    >>> log.add(0.012, 0.031, 1000.0)
+    >>> log.fail(0.052, "no status")
+    >>> log.to_json()["reads"]
+    [[0.012, 0.031, 1000.0]]
+    >>> log.summary()
+    'motor positions: 1 read (asked 50 Hz), 1 failed (last at t=0.052 s: no status)'
     """
 
     def __init__(self, rate_hz: float, counts_per_revolution: int | None = None) -> None:
