@@ -191,6 +191,20 @@ def test_a_failed_position_read_is_counted_and_the_recording_goes_on(tmp_path):
     assert rec.n_samples == sensor.frames_sent == acq["rows"] and acq["samples_lost"] == 0
 
 
+def test_a_servo_that_never_answers_a_read_delays_no_command(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, spoil=dict.fromkeys(range(1, 1000), "crc")) as servo:
+        result, sensor, rec = _rub_servo(tmp_path, servo, "--p2", "1200")
+    assert result.exit_code == 0, result.output
+    assert rec.motor_positions()[0].size == 0
+    assert rec.extra["motor_positions"]["reads_failed"] == servo.position_reads > 5
+    late = np.array([e.t for e in rec.events]) - [0.05, 0.25, 0.45, 0.65]
+    assert np.all(late >= 0) and np.all(late < 0.02)
+    assert servo.goals == [1000, 1200, 1000, 1200, 1000]
+    assert rec.n_samples == sensor.frames_sent == rec.extra["acquisition"]["rows"]
+
+
 def test_position_rate_0_reads_no_position(tmp_path):
     from fake_dynamixel import FakeDynamixel
 
