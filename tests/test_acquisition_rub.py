@@ -99,7 +99,7 @@ def test_rub_measurement_fits(rubbed):
 
 def test_rub_records_the_simulated_motor_position(rubbed, tmp_path):
     block = rubbed.extra["motor_positions"]
-    assert block["rate_hz"] == 50.0 and block["reads_failed"] == 0
+    assert block["rate_hz_requested"] == 50.0 and block["reads_failed"] == 0
     assert "counts_per_revolution" not in block  # the simulated gripper has no encoder
     t, x = rubbed.motor_positions()
     # from the first sample until the protocol stops, just after the last sample

@@ -43,7 +43,7 @@ def test_motor_positions_round_trip_at_their_own_times(tmp_path, rng):
     block = {"columns": [{"name": "t_request", "unit": "s"}, {"name": "t_reply", "unit": "s"},
                          {"name": "position", "unit": "counts"}],
              "reads": [[0.01, 0.03, 1000.0], [0.052, 0.07, 1003.0], [0.25, 0.27, 1200.0]],
-             "counts_per_revolution": 4096, "rate_hz": 50.0, "reads_failed": 1}
+             "counts_per_revolution": 4096, "rate_hz_requested": 50.0, "reads_failed": 1}
     rec = _rec(rng, extra={"motor_positions": block})
     assert _rec(rng).motor_positions() is None
     write_recording(rec, tmp_path / "r", decimals=3)

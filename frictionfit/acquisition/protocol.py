@@ -98,7 +98,7 @@ class PositionLog:
         with self._lock:
             out: dict[str, Any] = {"columns": [dict(c) for c in MOTOR_COLUMNS],
                                    "reads": [list(r) for r in self.reads],
-                                   "rate_hz": self.rate_hz, "reads_failed": self.failed}
+                                   "rate_hz_requested": self.rate_hz, "reads_failed": self.failed}
             if self.last_failure is not None:
                 out["last_failure"] = self.last_failure
         if self.counts_per_revolution is not None:
