@@ -66,7 +66,7 @@ class PositionLog:
 
     Filled by the protocol's thread while the writer takes snapshots (:meth:`to_json`).
     The sidecar, reads included, is rewritten whole at every flush: right for a protocol
-    of minutes (3 000 reads at 50 Hz), costly for hours.
+    of minutes (3 000 reads a minute at 50 Hz), costly for hours.
 
     Examples
     --------
