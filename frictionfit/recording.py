@@ -4,8 +4,10 @@ The CSV has a first column ``t`` (seconds from the start) and one column per
 channel. The JSON sidecar holds ``sample_rate_hz``, ``channels`` (name, unit),
 ``events`` (time-stamped commands such as ``{"t": 0.5, "kind": "move",
 "target": "p2"}``), ``metadata`` (``label``, ``material``, ``session``, ...)
-and ``truth`` (generating parameters of simulated data). Unknown keys are kept
-and written back. Every loader and the recorder produce a :class:`Recording`;
+and ``truth`` (generating parameters of simulated data). A recording made with
+an actuator may hold ``motor_positions``, the actuator's measured positions at
+the times they were read (see :meth:`Recording.motor_positions`). Unknown keys
+are kept and written back. Every loader and the recorder produce a :class:`Recording`;
 nothing else in frictionfit parses files.
 """
 
@@ -43,6 +45,11 @@ REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
 RATE_TOLERANCE = 0.02
 #: A channel whose finite samples span less than this (in its unit) is called dead.
 DEAD_CHANNEL_SPAN = 1e-12
+#: Sidecar key of the actuator's measured positions: ``columns`` (name, unit) of each row
+#: in ``reads``, one row per read: request and reply times (s) and the position.
+MOTOR_POSITIONS = "motor_positions"
+MOTOR_COLUMNS = ({"name": "t_request", "unit": "s"}, {"name": "t_reply", "unit": "s"},
+                 {"name": "position", "unit": "counts"})
 
 
 @dataclass(frozen=True)
@@ -200,6 +207,32 @@ class Recording:
             raise RecordingError(
                 f"no channel {name!r}; channels are {list(self.channel_names)}", path=self.name
             ) from None
+
+    def motor_positions(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The actuator's measured positions, or None when the recording holds none.
+
+        They are read at their own, irregular times, slower than the samples.
+
+        Returns
+        -------
+        t : ndarray of shape (n_reads,)
+            Seconds on the recording's clock (that of ``t`` and the events): the middle
+            of each read, between its request and its reply; both ends are in the
+            sidecar's ``motor_positions``, with ``counts_per_revolution`` when known.
+        position : ndarray of shape (n_reads,)
+            Actuator units (counts), the unit of the ``move`` events' ``position``.
+        """
+        block = self.extra.get(MOTOR_POSITIONS)
+        if block is None:
+            return None
+        try:
+            names = [c["name"] for c in block["columns"]]
+            reads = np.asarray(block["reads"], dtype=np.float64).reshape(-1, len(names))
+            t = (reads[:, names.index("t_request")] + reads[:, names.index("t_reply")]) / 2
+            return t, reads[:, names.index("position")]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RecordingError(f"malformed {MOTOR_POSITIONS!r} in sidecar: {exc!r}",
+                                 path=self.name) from None
 
     @property
     def disqualified(self) -> tuple[Problem, ...]:

@@ -18,10 +18,16 @@ class FakeDynamixel:
     """Servo ``servo_id`` at ``self.url``; logs every goal position it is sent.
 
     The present position follows the goal at ``speed`` counts per second.
+    ``spoil`` maps the number of a Present Position read (1 for the first) to
+    ``"crc"`` (its reply's CRC is broken) or ``"late"`` (its reply comes ``late_s``
+    seconds late); ``position_reads`` counts the reads.
     """
 
-    def __init__(self, servo_id: int = 1, position: int = 2048, speed: float = 2000.0) -> None:
+    def __init__(self, servo_id: int = 1, position: int = 2048, speed: float = 2000.0,
+                 spoil: dict[int, str] | None = None, late_s: float = 0.15) -> None:
         self.servo_id, self.speed = servo_id, speed
+        self.spoil, self.late_s = dict(spoil or {}), late_s
+        self.position_reads = 0
         self.table = {0: struct.pack("<H", MODEL_XM430_W350), 64: b"\x00",
                       116: struct.pack("<i", position), 132: struct.pack("<i", position)}
         self.goals: list[int] = []
@@ -65,7 +71,18 @@ class FakeDynamixel:
             for pkt in parser.feed(data):
                 if pkt.id == self.servo_id and pkt.instruction != STATUS:
                     reply = Packet(self.servo_id, STATUS, b"\x00" + self._reply(pkt))
-                    os.write(self._master, reply.encode())
+                    os.write(self._master, self._spoiled(pkt, reply.encode()))
+
+    def _spoiled(self, pkt: Packet, reply: bytes) -> bytes:
+        if pkt.instruction != READ or struct.unpack_from("<H", pkt.params)[0] != 132:
+            return reply
+        self.position_reads += 1
+        how = self.spoil.get(self.position_reads)
+        if how == "crc":
+            return reply[:-1] + bytes([reply[-1] ^ 1])
+        if how == "late":
+            time.sleep(self.late_s)
+        return reply
 
     def __enter__(self) -> FakeDynamixel:
         self._thread.start()

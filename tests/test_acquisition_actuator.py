@@ -1,6 +1,7 @@
 """Dynamixel Protocol 2.0 codec against the reference's packets; actuators; the protocol."""
 
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -78,8 +79,21 @@ def servo():
     actuator.close()
 
 
+def _answer(servo, raw):
+    """Put ``raw`` on the loop right after the servo's next request, as a servo would."""
+    send = servo.port.write
+
+    def request(data):
+        servo.port.write = send
+        written = send(data)
+        send(raw)
+        return written
+
+    servo.port.write = request
+
+
 def _reply(servo, error=0, data=b""):
-    servo.port.write(Packet(1, STATUS, bytes([error]) + data).encode())
+    _answer(servo, Packet(1, STATUS, bytes([error]) + data).encode())
 
 
 def test_dynamixel_on_loop(servo):
@@ -87,7 +101,7 @@ def test_dynamixel_on_loop(servo):
     assert servo.ping() == 1020
     _reply(servo)
     servo.move_to(2048)
-    servo.port.write(bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
+    _answer(servo, bytes.fromhex("FF FF FD 00 01 08 00 55 00 0C FE FF FF A9 44"))
     assert servo.position() == -500.0
 
 
@@ -96,7 +110,7 @@ def test_dynamixel_on_loop(servo):
     ("FF FF FD 00 01 04 00 55 80 A2 8F", "alert: hardware error latched"),
 ])
 def test_dynamixel_errors_in_words(servo, hexbytes, words):
-    servo.port.write(bytes.fromhex(hexbytes))
+    _answer(servo, bytes.fromhex(hexbytes))
     with pytest.raises(AcquisitionError, match=words):
         servo.move_to(100)
 
@@ -106,6 +120,35 @@ def test_dynamixel_limits_and_silence(servo):
         servo.move_to(5000)
     with pytest.raises(AcquisitionError, match="no status from servo 1 for READ position"):
         servo.position()
+
+
+def test_a_late_reply_is_dropped_not_taken_for_the_next():
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=2048, speed=1e9, spoil={1: "late"}, late_s=0.15) as fake:
+        servo = DynamixelActuator(fake.url, position_timeout_s=0.05)
+        try:
+            with pytest.raises(AcquisitionError, match="no status .* READ position within 0.05"):
+                servo.position()
+            time.sleep(0.2)  # the late reply (2048) is waiting in the port
+            servo.move_to(1000)  # kept, it would pass for this status: all later off by one
+            assert servo.position() == 1000.0 and servo.position() == 1000.0
+        finally:
+            servo.close()
+    assert fake.goals == [1000] and fake.position_reads == 3
+
+
+def test_a_reply_with_a_bad_crc_is_a_timeout():
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1500, spoil={1: "crc"}) as fake:
+        servo = DynamixelActuator(fake.url, position_timeout_s=0.05)
+        try:
+            with pytest.raises(AcquisitionError, match="no status from servo 1 for READ"):
+                servo.position()
+            assert servo.parser.crc_errors == 1 and servo.position() == 1500.0
+        finally:
+            servo.close()
 
 
 def test_simulated_gripper_moves_like_the_model_drive():

@@ -85,6 +85,20 @@ def test_an_event_reaches_the_sidecar_before_any_flush(tmp_path):
     assert side["acquisition"] == {"status": "recording"}
 
 
+def test_attached_data_reach_the_sidecar_at_every_write(tmp_path):
+    reads = [[0.01, 0.02, 5.0]]
+    writer = RecordingWriter(tmp_path / "w", [Channel("a_x", "N")], 1000.0)
+    writer.start()
+    writer.attach("motor_positions", lambda: {"reads": list(reads)})
+    writer.add_event(Event(0.05, "move", "p2"))  # then the process dies: no flush, no close
+    assert json.loads((tmp_path / "w.json").read_text())["motor_positions"] == {
+        "reads": [[0.01, 0.02, 5.0]]}
+    reads.append([0.03, 0.04, 6.0])
+    writer.close({"status": "complete"})
+    assert read_recording(tmp_path / "w", on_error="flag").extra["motor_positions"] == {
+        "reads": reads}
+
+
 def test_an_existing_recording_is_never_overwritten_without_asking(tmp_path):
     with FakeOptoForce(tmp_path / "tty") as _:
         first = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),

@@ -18,7 +18,7 @@ from frictionfit.acquisition.actuator import SimulatedGripper
 from frictionfit.acquisition.protocol import RubbingProtocol
 from frictionfit.cli import app
 from frictionfit.errors import Status
-from frictionfit.recording import read_recording
+from frictionfit.recording import read_recording, write_recording
 from frictionfit.segmentation import segment
 
 PROTOCOL = RubbingProtocol(0.0, 100.0, motions=3, dwell_s=0.5)
@@ -97,16 +97,51 @@ def test_rub_measurement_fits(rubbed):
         assert r2 > 0.9
 
 
+def test_rub_records_the_simulated_motor_position(rubbed, tmp_path):
+    block = rubbed.extra["motor_positions"]
+    assert block["rate_hz_requested"] == 50.0 and block["reads_failed"] == 0
+    assert "counts_per_revolution" not in block  # the simulated gripper has no encoder
+    t, x = rubbed.motor_positions()
+    # from the first sample until the protocol stops, just after the last sample
+    assert 0.0 <= t[0] < 0.05 and PROTOCOL.duration_s - 0.1 < t[-1] < rubbed.t[-1] + 0.05
+    assert 0.015 < np.median(np.diff(t)) < 0.025  # 50 Hz, give or take a busy machine
+    # each read lies between the gripper's positions at its request and its reply,
+    # the gripper's path rebuilt from the recorded commands (2 counts: µs of skew)
+    moves = [e for e in rubbed.events if e.kind == "move"]
+    clock = iter([0.0, *(e.t for e in moves)])
+    twin = SimulatedGripper(PROTOCOL.p1, clock=lambda: next(clock))
+    for e in moves:
+        twin.move_to(e.extra["position"])
+    reads = np.array(block["reads"])
+    ends = np.stack([twin.trajectory(reads[:, 0]), twin.trajectory(reads[:, 1])])
+    assert np.all(x >= ends.min(axis=0) - 2) and np.all(x <= ends.max(axis=0) + 2)
+    assert x.min() == pytest.approx(0.0) and x.max() == pytest.approx(100.0)
+    assert np.any((x > 10) & (x < 90))  # caught moving, not only at rest
+    write_recording(rubbed, tmp_path / "again")
+    t_back, x_back = read_recording(tmp_path / "again").motor_positions()
+    np.testing.assert_array_equal(t_back, t)
+    np.testing.assert_array_equal(x_back, x)
+
+
+def _rub_servo(tmp_path, servo, *options):
+    """``frictionfit rub`` with a fake servo, p1 1000, two motions of 0.2 s dwell; the
+    CLI's result, the fake sensor and the recording (None when there is none)."""
+    with FakeOptoForce(tmp_path / "tty") as sensor:
+        result = CliRunner().invoke(app, [
+            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", servo.url, "--p1", "1000",
+            "--motions", "2", "--dwell", "0.2", "--out", str(tmp_path / "rub"), "--quiet",
+            *options])
+    rec = read_recording(tmp_path / "rub") if (tmp_path / "rub.csv").exists() else None
+    return result, sensor, rec
+
+
 def test_rub_drives_a_dynamixel(tmp_path):
     from fake_dynamixel import FakeDynamixel
 
     from frictionfit.acquisition.actuator import DynamixelActuator
 
-    with FakeDynamixel() as servo, FakeOptoForce(tmp_path / "tty"):
-        result = CliRunner().invoke(app, [
-            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", servo.url, "--p1", "1000",
-            "--p2", "1200", "--motions", "2", "--dwell", "0.2", "--out", str(tmp_path / "rub"),
-            "--quiet"])
+    with FakeDynamixel() as servo:
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200")
         assert result.exit_code == 0, result.output
         assert servo.goals == [1000, 1200, 1000, 1200, 1000]  # p1 first, then the schedule
         assert servo.table[64] == b"\x01"  # torque on
@@ -115,20 +150,80 @@ def test_rub_drives_a_dynamixel(tmp_path):
             assert actuator.position() == 1000.0
         finally:
             actuator.close()
-    rec = read_recording(tmp_path / "rub")
     assert [e.extra["position"] for e in rec.events] == [1200.0, 1000.0, 1200.0, 1000.0]
+
+
+def test_rub_records_the_servo_position(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, speed=2000.0) as servo:
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200", "--position-rate", "100")
+    assert result.exit_code == 0, result.output
+    t, x = rec.motor_positions()
+    assert len(t) == servo.position_reads and rec.extra["motor_positions"]["reads_failed"] == 0
+    assert rec.extra["motor_positions"]["counts_per_revolution"] == 4096
+    assert f"motor positions: {len(t)} read at " in result.output
+    assert np.all(np.diff(t) > 0) and t[-1] < rec.t[-1] + 0.05
+    for e, end in zip(rec.events, [*(e.t for e in rec.events[1:]), np.inf], strict=True):
+        # the fake servo turns 2000 counts/s: 200 counts take 0.1 s, then it stays
+        held = x[(t > e.t + 0.12) & (t < end)]
+        assert held.size and set(held) == {e.extra["position"]}
+    assert np.any((x > 1000) & (x < 1200))  # caught moving
+
+
+def test_a_failed_position_read_is_counted_and_the_recording_goes_on(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, spoil={5: "crc", 9: "crc"}) as servo:
+        result, sensor, rec = _rub_servo(tmp_path, servo, "--p2", "1200")
+    assert result.exit_code == 0, result.output
+    block = rec.extra["motor_positions"]
+    assert block["reads_failed"] == 2
+    assert "no status from servo 1 for READ position within 0.05 s" in block["last_failure"]
+    assert ", 2 failed (last at t=" in result.output
+    t, _ = rec.motor_positions()
+    assert len(t) == servo.position_reads - 2  # every answered read is kept
+    assert [(e.kind, e.target) for e in rec.events] == [("move", "p2"), ("move", "p1")] * 2
+    # no read starts within its timeout of a command: the failed ones delayed none
+    late = np.array([e.t for e in rec.events]) - [0.05, 0.25, 0.45, 0.65]
+    assert np.all(late >= 0) and np.all(late < 0.02)
+    acq = rec.extra["acquisition"]
+    assert rec.n_samples == sensor.frames_sent == acq["rows"] and acq["samples_lost"] == 0
+
+
+def test_a_servo_that_never_answers_a_read_delays_no_command(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, spoil=dict.fromkeys(range(1, 1000), "crc")) as servo:
+        result, sensor, rec = _rub_servo(tmp_path, servo, "--p2", "1200")
+    assert result.exit_code == 0, result.output
+    assert rec.motor_positions()[0].size == 0
+    assert rec.extra["motor_positions"]["reads_failed"] == servo.position_reads > 5
+    late = np.array([e.t for e in rec.events]) - [0.05, 0.25, 0.45, 0.65]
+    assert np.all(late >= 0) and np.all(late < 0.02)
+    assert servo.goals == [1000, 1200, 1000, 1200, 1000]
+    assert rec.n_samples == sensor.frames_sent == rec.extra["acquisition"]["rows"]
+
+
+def test_position_rate_0_reads_no_position(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000) as servo:
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200", "--position-rate", "0")
+        assert result.exit_code == 0, result.output
+        assert servo.position_reads == 0 and "motor positions" not in result.output
+        assert rec.motor_positions() is None and "motor_positions" not in rec.extra
+        result, _, _ = _rub_servo(tmp_path, servo, "--p2", "1200", "--position-rate", "-1",
+                                  "--overwrite")
+    assert result.exit_code == 2 and "--position-rate must be >= 0 Hz, got -1" in result.output
 
 
 def test_refused_command_is_an_event_and_an_error(tmp_path):
     from fake_dynamixel import FakeDynamixel
 
-    with FakeDynamixel() as servo, FakeOptoForce(tmp_path / "tty"):
-        result = CliRunner().invoke(app, [
-            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", servo.url, "--p1", "1000",
-            "--p2", "5000", "--motions", "1", "--dwell", "0.2", "--out", str(tmp_path / "rub"),
-            "--quiet"])
+    with FakeDynamixel() as servo:
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "5000", "--motions", "1")
     assert result.exit_code == 1
     assert "goal position 5000 is outside the servo's limits 0..4095" in result.output
     assert "the recording is kept" in result.output
-    rec = read_recording(tmp_path / "rub")
     assert [(e.kind, e.target) for e in rec.events] == [("protocol_error", "p2")]

@@ -18,14 +18,14 @@ from frictionfit.recording import (
 CHANNELS = ["thumb_x", "thumb_y", "index_x", "index_y"]
 
 
-def _rec(rng, n=500, name="s1_paper-2_01"):
+def _rec(rng, n=500, name="s1_paper-2_01", extra=None):
     x = np.round(rng.standard_normal((n, 4)), 3)
     return Recording.from_arrays(
         x, 1000.0, CHANNELS, name=name,
         events=[Event(0.05, "move", "p2"), Event(0.3, "move", "p1")],
         metadata={"label": "paper-2", "material": "paper", "layers": 2, "session": 1,
                   "trial": 1, "free": {"a": 1}},
-        truth={"k": 3.0}, extra={"acquisition": {"frames_valid": 10}},
+        truth={"k": 3.0}, extra={"acquisition": {"frames_valid": 10}, **(extra or {})},
     )
 
 
@@ -37,6 +37,27 @@ def test_round_trip_is_exact(tmp_path, rng):
     assert back.metadata == rec.metadata and back.truth == rec.truth
     assert back.events == rec.events and back.channels == rec.channels
     assert back.extra == rec.extra
+
+
+def test_motor_positions_round_trip_at_their_own_times(tmp_path, rng):
+    block = {"columns": [{"name": "t_request", "unit": "s"}, {"name": "t_reply", "unit": "s"},
+                         {"name": "position", "unit": "counts"}],
+             "reads": [[0.01, 0.03, 1000.0], [0.052, 0.07, 1003.0], [0.25, 0.27, 1200.0]],
+             "counts_per_revolution": 4096, "rate_hz_requested": 50.0, "reads_failed": 1}
+    rec = _rec(rng, extra={"motor_positions": block})
+    assert _rec(rng).motor_positions() is None
+    write_recording(rec, tmp_path / "r", decimals=3)
+    back = read_recording(tmp_path / "r")
+    assert back.extra["motor_positions"] == block
+    t, position = back.motor_positions()
+    np.testing.assert_allclose(t, [0.02, 0.061, 0.26])  # the middle of each read
+    np.testing.assert_array_equal(position, [1000.0, 1003.0, 1200.0])
+
+
+def test_malformed_motor_positions_name_the_recording(rng):
+    rec = _rec(rng, extra={"motor_positions": {"columns": [{"name": "t"}], "reads": [[0.1]]}})
+    with pytest.raises(RecordingError, match="s1_paper-2_01.*malformed 'motor_positions'"):
+        rec.motor_positions()
 
 
 def test_round_trip_with_millinewton_decimals(tmp_path, rng):

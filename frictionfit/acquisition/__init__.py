@@ -9,7 +9,8 @@ and never JAX, so a recorder starts fast and runs beside a fit.
 - :mod:`~frictionfit.acquisition.recorder`: incremental fsync'd writer and the record loop.
 - :mod:`~frictionfit.acquisition.dynamixel`, :mod:`~frictionfit.acquisition.actuator`:
   Dynamixel Protocol 2.0 codec, the actuator interface, a simulated gripper.
-- :mod:`~frictionfit.acquisition.protocol`: the rubbing protocol's schedule.
+- :mod:`~frictionfit.acquisition.protocol`: the rubbing protocol's schedule, and the
+  actuator's measured position read between its commands.
 """
 
 from frictionfit.acquisition.actuator import Actuator as Actuator
@@ -17,6 +18,7 @@ from frictionfit.acquisition.actuator import DynamixelActuator as DynamixelActua
 from frictionfit.acquisition.actuator import SimulatedGripper as SimulatedGripper
 from frictionfit.acquisition.frames import DataFrame as DataFrame
 from frictionfit.acquisition.frames import FrameParser as FrameParser
+from frictionfit.acquisition.protocol import PositionLog as PositionLog
 from frictionfit.acquisition.protocol import ProtocolRunner as ProtocolRunner
 from frictionfit.acquisition.protocol import RubbingProtocol as RubbingProtocol
 from frictionfit.acquisition.recorder import RecordingWriter as RecordingWriter

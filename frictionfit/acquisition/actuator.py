@@ -21,7 +21,15 @@ __all__ = ["Actuator", "DynamixelActuator", "SimulatedGripper"]
 
 
 class Actuator(abc.ABC):
-    """What the rubbing protocol needs from a finger drive."""
+    """What the rubbing protocol needs from a finger drive.
+
+    ``counts_per_revolution`` is the encoder's resolution when the positions are
+    encoder counts of a rotary drive, None otherwise. ``position_timeout_s`` is the
+    longest :meth:`position` waits for the hardware (0 when it does not wait).
+    """
+
+    counts_per_revolution: int | None = None
+    position_timeout_s: float = 0.0
 
     @abc.abstractmethod
     def move_to(self, position: float) -> None:
@@ -97,11 +105,20 @@ class DynamixelActuator(Actuator):
         Allowed goal positions in counts (Min/Max Position Limit; 0-4095 by default).
     timeout_s : float
         How long to wait for a status packet.
+    position_timeout_s : float
+        How long :meth:`position` waits for its reply: short, because the protocol
+        reads the position between commands and starts no read closer than this to a
+        command. The DynamixelSDK waits about 35 ms for a short reply at 57 600 baud
+        with the adapter's default 16 ms latency.
     """
 
+    counts_per_revolution = 4096
+
     def __init__(self, url: str, servo_id: int = 1, *, baudrate: int = 57_600,
-                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5) -> None:
+                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5,
+                 position_timeout_s: float = 0.05) -> None:
         self.url, self.servo_id, self.limits, self.timeout_s = url, servo_id, limits, timeout_s
+        self.position_timeout_s = position_timeout_s
         try:
             self.port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.005)
             self.port.reset_input_buffer()
@@ -109,12 +126,18 @@ class DynamixelActuator(Actuator):
             raise AcquisitionError(f"{url}: cannot open the servo's port: {exc}") from None
         self.parser = PacketParser()
 
-    def _exchange(self, instruction: int, params: bytes, what: str) -> bytes:
+    def _exchange(self, instruction: int, params: bytes, what: str,
+                  timeout_s: float | None = None) -> bytes:
+        timeout_s = self.timeout_s if timeout_s is None else timeout_s
         try:
+            # The servo speaks only when asked, so what waits now is a late reply to an
+            # earlier request; kept, it would pass for this one's and shift every later one.
+            self.port.reset_input_buffer()
+            self.parser.clear()
             self.port.write(Packet(self.servo_id, instruction, params).encode())
         except (serial.SerialException, OSError) as exc:
             raise AcquisitionError(f"{self.url}: cannot write to the servo: {exc}") from None
-        deadline = time.monotonic() + self.timeout_s
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             chunk = self.port.read(max(1, self.port.in_waiting))
             for pkt in self.parser.feed(chunk):
@@ -129,7 +152,7 @@ class DynamixelActuator(Actuator):
                         f"({_ERRORS.get(number, 'unknown')}){alert}")
                 return pkt.data
         raise AcquisitionError(f"{self.url}: no status from servo {self.servo_id} for {what} "
-                               f"within {self.timeout_s} s (wrong ID, baud rate or protocol?)")
+                               f"within {timeout_s} s (wrong ID, baud rate or protocol?)")
 
     def ping(self) -> int:
         """The model number (e.g. 1020 for an XM430-W350)."""
@@ -154,7 +177,8 @@ class DynamixelActuator(Actuator):
         self.write(GOAL_POSITION, goal, 4)
 
     def position(self) -> float:
-        data = self._exchange(READ, struct.pack("<HH", PRESENT_POSITION, 4), "READ position")
+        data = self._exchange(READ, struct.pack("<HH", PRESENT_POSITION, 4), "READ position",
+                              self.position_timeout_s)
         if len(data) != 4:
             raise AcquisitionError(f"{self.url}: position reply has {len(data)} bytes, not 4")
         return float(struct.unpack("<i", data)[0])

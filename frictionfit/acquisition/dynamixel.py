@@ -91,6 +91,10 @@ class PacketParser:
         self._buf = bytearray()
         self.crc_errors = 0
 
+    def clear(self) -> None:
+        """Drop the bytes buffered so far (a partial packet included)."""
+        self._buf.clear()
+
     def feed(self, data: bytes) -> list[Packet]:
         buf = self._buf
         buf += data

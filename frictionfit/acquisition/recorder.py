@@ -63,6 +63,7 @@ class RecordingWriter:
         self._lock = threading.Lock()
         self._sidecar_lock = threading.Lock()
         self._acquisition: dict[str, Any] = {"status": "recording"}
+        self._attached: dict[str, Callable[[], Any]] = {}
         self._csv = None
 
     def start(self) -> None:
@@ -90,6 +91,11 @@ class RecordingWriter:
         with self._lock:
             self.events.append(event)
         self._write_sidecar(self._acquisition)
+
+    def attach(self, key: str, snapshot: Callable[[], Any]) -> None:
+        """Keep ``key`` in the sidecar as ``snapshot()`` returns it at every sidecar write
+        (each flush and event), so it reaches the disk as often as the rows."""
+        self._attached[key] = snapshot
 
     def write_rows(self) -> None:
         """Append the queued rows to the CSV and push them to the disk (fsync)."""
@@ -124,9 +130,11 @@ class RecordingWriter:
             self._acquisition = acquisition
             with self._lock:
                 events = tuple(self.events)
+            attached = {key: snapshot() for key, snapshot in self._attached.items()}
             empty = Recording(np.empty(0), np.empty((0, len(self.channels))),
                               self.sample_rate_hz, self.channels, events=events,
-                              metadata=self.metadata, extra={"acquisition": acquisition})
+                              metadata=self.metadata,
+                              extra={"acquisition": acquisition, **attached})
             tmp = self.json_path.with_suffix(".json.tmp")
             with open(tmp, "w", encoding="utf-8") as fh:
                 json.dump(empty.sidecar(), fh, indent=1)

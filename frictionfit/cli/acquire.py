@@ -143,6 +143,8 @@ def rub(
     sensitivity: Path = typer.Option(None, help=_SENS_HELP),
     servo_id: int = typer.Option(1, help="Dynamixel ID."),
     baud: int = typer.Option(57_600, help="Dynamixel baud rate."),
+    position_rate: float = typer.Option(50.0, help="Reads per second of the motor's present "
+                                        "position between commands; 0 = none."),
     quiet: bool = typer.Option(False, help="No live progress line."),
     overwrite: bool = typer.Option(False, help="Replace an existing recording at --out."),
 ) -> None:
@@ -150,6 +152,9 @@ def rub(
 
     The finger goes to p1, then ``--motions`` times to p2 and back, a command every
     ``--dwell`` seconds from t = 0.05 s; each command is a ``move`` event in the sidecar.
+    Between commands the motor's present position is read ``--position-rate`` times a
+    second (as fast as the servo answers, at most) into the sidecar's
+    ``motor_positions``; a failed read is counted and skipped.
     """
     from frictionfit.acquisition.protocol import ProtocolRunner, RubbingProtocol
     from frictionfit.acquisition.recorder import refuse_existing
@@ -157,6 +162,8 @@ def rub(
 
     try:
         protocol = RubbingProtocol(p1, p2, motions, dwell)
+        if not position_rate >= 0:
+            raise ValueError(f"--position-rate must be >= 0 Hz, got {position_rate:g}")
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -171,10 +178,12 @@ def rub(
                                  "actuator": actuator}}
             if label is not None:
                 meta["label"] = label
-            runner = ProtocolRunner(protocol, drive)
+            runner = ProtocolRunner(protocol, drive, position_rate_hz=position_rate)
             _run(streams, out, protocol.duration_s, quiet, meta, runner.start, overwrite)
         finally:
             drive.close()
+        if runner.positions is not None:
+            typer.echo(runner.positions.summary())
         if runner.error is not None:
             raise AcquisitionError(f"{actuator}: {runner.error} (the recording is kept)")
     except AcquisitionError as exc:
