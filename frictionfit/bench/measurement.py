@@ -85,7 +85,7 @@ def recovery(n: int = 35, seed: int = 0, channel: str = "index_x", n_peer: int =
         "converged_unflagged_rate": float(np.mean((res.status == Status.CONVERGED) & unflagged)),
         "flagged_rate_by_param": {k: float(np.mean([k in f for f in res.flags]))
                                   for k in res.values[0]},
-        "peers": _against_peers(items[:n_peer], n_numpy),
+        "peers": _against_peers(items[:n_peer], n_numpy) if n_peer else {},
     }
 
 

@@ -44,7 +44,7 @@ __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_da
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
 #: movement and the fast start of the relaxation. The rest is averaged over ``coarse``.
-FINE_S = 0.3
+FINE_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -156,10 +156,11 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck
     y = np.where(ok, grid[:, j], 0.0)
     direction, guess = _guess(t_grid, np.where(ok, y, np.nan), ok, commands, signs, stroke_mm)
-    t, y_mean, count = _block_means(t_grid, y, ok,
-                                    _block_edges(t_grid, commands, decimate, coarse))
     first = 2 * skip_motions
     start = commands[first] if first < commands.size else np.inf
+    # the motions not fitted only carry the contact's state: coarse blocks throughout
+    t, y_mean, count = _block_means(t_grid, y, ok,
+                                    _block_edges(t_grid, commands[first:], decimate, coarse))
     noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
     return MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
                            commands, signs, direction, guess, rec.metadata.get("session"))
