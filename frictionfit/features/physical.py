@@ -183,7 +183,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 8  # 8: with the held force and the stick-slip intensity
+    _version = 9  # 9: the held force, the stick-slip intensity, a coarser grid
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
