@@ -199,7 +199,7 @@ ax.legend(fontsize=8)
 # paper-2 vs banknote-2). With all physical features the SVM leans on the measured
 # relaxation curve, onset rates and peak times. These measurements follow the model's own
 # physics; on the lab stand-in, whose physics is not the model's, the measured quantities
-# win (0.94 against 0.80 leave-one-session-out on three days), which is why `physical` is
+# win (0.94 against 0.83 leave-one-session-out on three days), which is why `physical` is
 # the default. With one training day the LDA projection stepped aside (too few rows); on
 # the lab stand-in, with two or three training days, it is what lifts physical features
 # above the hand-crafted baseline.

@@ -140,8 +140,8 @@ class PhysicalFeatures(RecordingFeatures):
     fitted : bool, default False
         Include the fitted law's parameters (see the module notes). Off by default:
         on the lab stand-in (sessions 1-3, leave-one-session-out, SVM behind the LDA
-        projection) they score 0.795 alone against 0.940 for the measured quantities,
-        and 0.945 with them, for ~3 min of fitting of 420 recordings.
+        projection) they score 0.826 alone against 0.940 for the measured quantities,
+        and 0.943 with them, for ~3 min of fitting of 420 recordings.
     measured : bool, default True
         Include the measured quantities.
     shape : bool, default True
@@ -183,7 +183,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 9  # 9: the held force, the stick-slip intensity, a coarser grid
+    _version = 10  # 10: the held force, the stick-slip intensity, a coarse first motion
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,

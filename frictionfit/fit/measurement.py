@@ -44,7 +44,7 @@ __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_da
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
 #: movement and the fast start of the relaxation. The rest is averaged over ``coarse``.
-FINE_S = 0.25
+FINE_S = 0.3
 
 
 @dataclass(frozen=True)
