@@ -175,12 +175,12 @@ display(Image(filename=FIGURES / "corner.png"))
 # Fitted one motion at a time, the stiffness is not measured: the batch of motions ends on
 # the far end of the `k`-duration ridge (thousands of N/mm against a true ~38), flagged not
 # identifiable; only the kinetic friction and the motor delay are trustworthy there. Fitted
-# whole (`relaxation2`), the same recording gives `k` 24 +/- 12 N/mm (true 38), `f_kin`
+# whole (`relaxation2`), the same recording gives `k` 24 +/- 11 N/mm (true 38), `f_kin`
 # 0.63 N (0.59), `f_static_excess` 0.25 N (0.28), `tau` 56 ms (50 ms) and `relax_frac`
 # 0.29 (0.14), at R^2 0.9993 over eight fitted strokes; the held force it derives,
 # 0.483 +/- 0.003 N, is determined far better than any of the parameters that make it up.
 # This paper contact is stiff: it loads within a few milliseconds, during the motor's
-# acceleration, so `k` carries a 50 % standard error; the softer materials of the library
+# acceleration, so `k` carries a 47 % standard error; the softer materials of the library
 # come out within a few per cent
 # (notebook 02). The per-motion posterior (last section) shows the same ridge as a wide,
 # skewed `k` distribution that emcee does not finish exploring in 2000 steps.

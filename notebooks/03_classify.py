@@ -192,12 +192,12 @@ ax.legend(fontsize=8)
 # Trained on one day and tested on the other, on 12 deliberately close classes, the
 # fitted contact law alone (`fitted`: stiffness, static friction level, held force,
 # stick-slip intensity, relaxation and drag of the two rubbing channels, each recording
-# fitted whole) scores best, 0.75 (folds 0.75 / 0.75), ahead of the measured contact
-# quantities (`physical`, 0.57), both together (0.57), handcrafted (0.35), FFT bins (0.31)
+# fitted whole) scores best, 0.69 (folds 0.72 / 0.67), ahead of the measured contact
+# quantities (`physical`, 0.57), both together (0.61), handcrafted (0.35), FFT bins (0.31)
 # and raw signals (0.24). Every physical set gets the layer count right (1.00), and most
 # errors fall inside the designed look-alike pairs (curtain-rose vs curtain-white,
-# paper-2 vs banknote-2). With all physical features the SVM leans on the measured
-# relaxation curve, onset rates and peak times. These measurements follow the model's own
+# paper-2 vs banknote-2). With all physical features the SVM leans on the onset rates,
+# the relaxation curve, the peak times, the slip ripple and the fitted stiffness. These measurements follow the model's own
 # physics; on the lab stand-in, whose physics is not the model's, the measured quantities
 # win (0.94 against 0.83 leave-one-session-out on three days), which is why `physical` is
 # the default. With one training day the LDA projection stepped aside (too few rows); on
