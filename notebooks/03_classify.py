@@ -197,10 +197,10 @@ ax.legend(fontsize=8)
 # and raw signals (0.24). Every physical set gets the layer count right (1.00), and most
 # errors fall inside the designed look-alike pairs (curtain-rose vs curtain-white,
 # paper-2 vs banknote-2). With all physical features the SVM leans on the onset rates,
-# the relaxation curve, the peak times, the slip ripple and the fitted stiffness. These measurements follow the model's own
-# physics; on the lab stand-in, whose physics is not the model's, the measured quantities
-# win (0.94 against 0.83 leave-one-session-out on three days), which is why `physical` is
-# the default. With one training day the LDA projection stepped aside (too few rows); on
+# the relaxation curve, the peak times, the slip ripple and the fitted stiffness. These
+# measurements follow the model's own physics; on the lab stand-in, whose physics is not
+# the model's, the measured quantities win (0.94 against 0.83 leave-one-session-out on
+# three days), which is why `physical` is the default. With one training day the LDA projection stepped aside (too few rows); on
 # the lab stand-in, with two or three training days, it is what lifts physical features
 # above the hand-crafted baseline.
 #
