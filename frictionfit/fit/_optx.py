@@ -81,42 +81,46 @@ def _where_slots(keep, old, new):
 
 
 @lru_cache(maxsize=32)
-def _segment_fn(solver, fn: Callable, segment: int, max_steps: int, jac: str):
-    """Jitted ``run(slots, fresh, live, y0, args) -> (slots, code, value)``: re-``init``
-    the ``fresh`` slots (``live``: holding a problem), then up to ``segment`` steps."""
+def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: str):
+    """Jitted ``start(arrays, live, y0, args) -> slots`` and ``run(arrays, slots, fresh,
+    live, y0, args) -> (slots, code, value)``: re-``init`` the ``fresh`` slots
+    (``live``: holding a problem), then up to ``segment`` steps. ``arrays`` is the
+    array part of the solver, ``static_solver`` the rest (the cache key)."""
     options, tags = {"jac": jac}, frozenset()
 
     def fn_aux(y, args):
         return fn(y, args), None
 
-    def init(y0, args):
+    def init(solver, y0, args):
         f_struct, aux_struct = jax.eval_shape(fn_aux, y0, args)
         state = solver.init(fn_aux, y0, args, options, f_struct, aux_struct, tags)
         stop, result = solver.terminate(fn_aux, y0, args, options, state, tags)
         return state, stop | (result != optx.RESULTS.successful), result
 
-    def step(y, state, args):
+    def step(solver, y, state, args):
         y, state, _ = solver.step(fn_aux, y, args, options, state, tags)
         stop, result = solver.terminate(fn_aux, y, args, options, state, tags)
         finite = jnp.all(jnp.isfinite(y))
         result = optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
         return y, state, stop | (result != optx.RESULTS.successful), result
 
-    def finish(slot: _Slots, state, args):
+    def finish(solver, slot: _Slots, state, args):
         result = optx.RESULTS.where(slot.stop, slot.result,
                                     optx.RESULTS.nonlinear_max_steps_reached)
         code = jnp.where(slot.stop | (slot.steps >= max_steps), _status(result), RUNNING)
         return code, solver.postprocess(fn_aux, slot.y, None, args, options, state, tags,
                                         result)[0]
 
-    def start(live, y0, args):
-        state, stop, result = eqx.filter_vmap(init)(y0, args)
+    def start(solver, live, y0, args):
+        state, stop, result = eqx.filter_vmap(lambda y, a: init(solver, y, a))(y0, args)
         dynamic, static = eqx.partition(state, eqx.is_array)
         return _Slots(y0, dynamic, jnp.zeros(y0.shape[0], int), stop | ~live, result), static
 
-    def run(slots: _Slots, fresh, live, y0, args):
-        new, static = start(live, y0, args)
-        slots = _where_slots(fresh, new, slots)
+    def run(arrays, slots: _Slots, fresh, live, y0, args):
+        solver = eqx.combine(arrays, static_solver)
+        static = start(solver, live, y0, args)[1]  # traced only: the array part is unused
+        slots = jax.lax.cond(jnp.any(fresh), lambda s: _where_slots(
+            fresh, start(solver, live, y0, args)[0], s), lambda s: s, slots)
 
         def running(s):
             return ~s.stop & (s.steps < max_steps)
@@ -124,16 +128,19 @@ def _segment_fn(solver, fn: Callable, segment: int, max_steps: int, jac: str):
         def body(carry):
             i, s = carry
             state = eqx.combine(s.state, static)
-            y, state, stop, result = eqx.filter_vmap(step)(s.y, state, args)
+            y, state, stop, result = eqx.filter_vmap(
+                lambda *a: step(solver, *a))(s.y, state, args)
             new = _Slots(y, eqx.filter(state, eqx.is_array), s.steps + 1, stop, result)
             return i + 1, _where_slots(running(s), new, s)
 
         _, slots = jax.lax.while_loop(lambda c: (c[0] < segment) & jnp.any(running(c[1])),
                                       body, (0, slots))
-        code, value = eqx.filter_vmap(finish)(slots, eqx.combine(slots.state, static), args)
+        code, value = eqx.filter_vmap(lambda *a: finish(solver, *a))(
+            slots, eqx.combine(slots.state, static), args)
         return slots, code, value
 
-    return jax.jit(lambda live, y0, args: start(live, y0, args)[0]), jax.jit(run)
+    return (jax.jit(lambda arrays, *a: start(eqx.combine(arrays, static_solver), *a)[0]),
+            jax.jit(run, donate_argnums=1))
 
 
 def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.ndarray, args,
@@ -150,13 +157,14 @@ def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.n
     """
     if not isinstance(solver, optx.AbstractLeastSquaresSolver):
         raise FitError(f"{type(solver).__name__} is not an optimistix least-squares solver")
-    fns = _segment_fn(solver, fn, segment, max_steps, jac)
+    arrays, static = eqx.partition(solver, eqx.is_array)
+    fns = _segment_fn(static, fn, segment, max_steps, jac)
     return in_threads(lambda share, device: _solve_serial(
-        fns, y0[share], jax.tree_util.tree_map(lambda a: a[share], args), pool_size, device,
+        fns, arrays, y0[share], jax.tree_util.tree_map(lambda a: a[share], args), pool_size, device,
         progress), y0.shape[0], pool_size, threads)
 
 
-def _solve_serial(fns, y0: np.ndarray, args, pool_size: int, device, progress):
+def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, progress):
     """:func:`solve_pooled` in the calling thread: one pool on ``device`` (or the default)."""
     start, run = fns
     n = y0.shape[0]
@@ -185,8 +193,8 @@ def _solve_serial(fns, y0: np.ndarray, args, pool_size: int, device, progress):
                 lambda a, k=keep: a[k], (slots, slot_y0, slot_args, owner, fresh))
         inputs = jax.device_put((owner >= 0, slot_y0, slot_args), device)
         if slots is None:  # the first call: every slot starts here
-            slots, fresh[:] = start(*inputs), False
-        slots, code, value = run(slots, fresh, *inputs)
+            slots, fresh[:] = start(arrays, *inputs), False
+        slots, code, value = run(arrays, slots, fresh, *inputs)
         code = np.asarray(code)  # waits for the call: only now may its inputs change
         fresh[:] = False
         done = np.flatnonzero((owner >= 0) & (code != RUNNING))
