@@ -118,3 +118,12 @@ def test_fit_trials_refuses_a_minimiser():
     with pytest.raises(FitError, match="optimistix least-squares solver, not BFGS"):
         fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model="elastic_plastic",
                    solver=optx.BFGS(rtol=1e-8, atol=1e-8))
+
+
+def test_threads_do_not_change_results():
+    y0, args = _problems(8, seed=1)
+    solver = SOLVERS["optx-lm"]
+    one = solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60, threads=1)
+    two = solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60, threads=2)
+    for a, b in zip(one, two, strict=True):  # two pools of 3 slots, a thread each
+        np.testing.assert_array_equal(a, b)

@@ -32,11 +32,8 @@ import optimistix as optx
 
 from frictionfit.errors import FitError, Status
 from frictionfit.fit._lm import in_threads, pool_sizes
-from frictionfit.fit._numerics import pad_rows
-from frictionfit.fit._problem import residual_fn
-from frictionfit.models import ContactModel
 
-__all__ = ["OPTX_SOLVERS", "RESULT_STATUS", "solve_pooled", "solve_rounds"]
+__all__ = ["RESULT_STATUS", "solve_pooled"]
 
 #: What a solver's result means for a trial. A slot that used ``max_steps`` without
 #: ``terminate`` saying stop is ``Status.MAX_STEPS``; a result not listed, too.
@@ -140,7 +137,7 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
         return slots, code, value
 
     return (jax.jit(lambda arrays, *a: start(eqx.combine(arrays, static_solver), *a)[0]),
-            jax.jit(run, donate_argnums=1))
+            jax.jit(run))
 
 
 def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.ndarray, args,
@@ -191,7 +188,9 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
             keep = np.concatenate([busy, np.flatnonzero(owner < 0)])[:b]
             slots, slot_y0, slot_args, owner, fresh = jax.tree_util.tree_map(
                 lambda a, k=keep: a[k], (slots, slot_y0, slot_args, owner, fresh))
-        inputs = jax.device_put((owner >= 0, slot_y0, slot_args), device)
+        # copies: on the CPU a device array may share the host buffer, refilled in place
+        inputs = jax.device_put(jax.tree_util.tree_map(np.array, (owner >= 0, slot_y0,
+                                                                  slot_args)), device)
         if slots is None:  # the first call: every slot starts here
             slots, fresh[:] = start(arrays, *inputs), False
         slots, code, value = run(arrays, slots, fresh, *inputs)
@@ -206,58 +205,3 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
         owner[done] = -1
         if progress is not None and done.size:
             progress(int(done.size))
-
-
-OPTX_SOLVERS = ("optx-lm", "dogleg", "gauss-newton")
-
-
-def _solver(name: str, rtol: float, atol: float):
-    if name == "optx-lm":
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    if name == "dogleg":
-        return optx.Dogleg(rtol=rtol, atol=atol)
-    if name == "gauss-newton":
-        return optx.GaussNewton(rtol=rtol, atol=atol)
-    raise FitError(f"unknown solver {name!r}; choose from {('lm', *OPTX_SOLVERS)}")
-
-
-@lru_cache(maxsize=64)
-def _chunk_solver(model: ContactModel, free: tuple[int, ...], solver: str, rtol: float,
-                  atol: float, steps: int):
-    """A jitted, vmapped solve of one chunk; cached so a second batch never recompiles."""
-    residual = residual_fn(model, free)
-    opt = _solver(solver, rtol, atol)
-
-    def one(u0, data):
-        sol = optx.least_squares(residual, opt, u0, args=data, max_steps=steps, throw=False,
-                                 options={"jac": "fwd"})
-        # A whole Solution cannot leave vmap; return plain arrays.
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
-
-    return eqx.filter_jit(jax.vmap(one))
-
-
-def solve_rounds(model: ContactModel, free: tuple[int, ...], u0: np.ndarray, data, solver: str,
-                 rtol: float, atol: float, max_steps: int, steps_per_round: int,
-                 chunk_size: int):
-    """Fit every trial with an optimistix solver; returns ``(u, converged, steps)``."""
-    _solver(solver, rtol, atol)  # unknown names fail here, before any compilation
-    n_trials = u0.shape[0]
-    steps_per_round = min(steps_per_round, max_steps)
-    solve = _chunk_solver(model, free, solver, rtol, atol, steps_per_round)
-    u = u0.copy()
-    converged = np.zeros(n_trials, dtype=bool)
-    steps = np.zeros(n_trials, dtype=np.int64)
-    active = np.arange(n_trials)
-    while active.size:
-        for start in range(0, active.size, chunk_size):
-            idx = active[start:start + chunk_size]
-            rows = pad_rows(idx, chunk_size)
-            chunk = jax.tree_util.tree_map(lambda a, r=rows: jnp.asarray(a[r]), data)
-            u_new, ok, nst = solve(jnp.asarray(u[rows]), chunk)
-            u[idx] = np.asarray(u_new)[: idx.size]
-            converged[idx] = np.asarray(ok)[: idx.size]
-            steps[idx] += np.asarray(nst)[: idx.size]
-        active = active[~converged[active] & (steps[active] < max_steps)
-                        & np.all(np.isfinite(u[active]), axis=1)]
-    return u, converged, steps
