@@ -8,7 +8,9 @@ coordinates):
   implementation of the model (:func:`numpy_predict`, a per-sample Python loop;
   finite-difference Jacobian), trial by trial;
 * ``scipy-jax``: the same scipy solver driven by the jitted JAX residual and
-  forward-mode Jacobian, trial by trial.
+  forward-mode Jacobian, trial by trial;
+* for the solver paths (:func:`_solver_paths`), optimistix's own batch:
+  ``jax.vmap(optx.least_squares)`` over chunks, in rounds (:func:`_vmapped_rounds`).
 
 Errors are median relative errors of the true model's parameters
 (``|est - true| / max(|true|, 0.05)``) over the parameters the trials identify
