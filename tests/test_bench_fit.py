@@ -68,3 +68,25 @@ def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
         ref = np.asarray(residual(jnp.asarray(u), data))
         twin = numpy_residual(model, u, measurement)
         np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
+
+@pytest.mark.slow
+def test_solver_paths_measure_each_path_on_the_same_trials():
+    from frictionfit.bench.fit import _solver_paths
+    from frictionfit.fit import initial_guess
+    from frictionfit.models import get_model
+    from frictionfit.simulation.trials import simulate_trials
+
+    ts = simulate_trials("elastic_plastic", 8, seed=0)
+    model = get_model("elastic_plastic")
+    u0 = initial_guess(model, ts.t, ts.y, np.full(8, ts.t_out), np.full(8, ts.t_back),
+                       ts.direction)
+    points, summary = _solver_paths(ts, model, u0, 4, reps=1)
+    assert [p["config"] for p in points] == [
+        f"{k} elastic_plastic threads=1"
+        for k in ("lm solve_pool", "lm driver", "optx-lm driver", "optx-lm rounds")]
+    # frictionfit's LM through the driver is solve_pool's arithmetic: same optima
+    assert points[0]["error"] == points[1]["error"]
+    assert points[0]["success_rate"] == points[1]["success_rate"] >= 0.75
+    for key in ("lm_driver_over_solve_pool", "optx_lm_driver_over_rounds",
+                "optx_lm_rounds_trials_per_s", "optx_lm_driver_success_rate"):
+        assert np.isfinite(summary[key]) and summary[key] > 0, key

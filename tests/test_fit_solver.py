@@ -113,5 +113,5 @@ def test_fit_trials_takes_the_solver_object():
     loose = fit_trials(*args, model="elastic_plastic",
                        solver=BatchedLevenbergMarquardt(ftol=1e-2, rtol=1e-2))
     assert loose.n_steps.sum() < by_name.n_steps.sum()
-    with pytest.raises(FitError, match="or a BatchedLevenbergMarquardt"):
+    with pytest.raises(FitError, match="or give an optimistix least-squares solver"):
         fit_trials(*args, model="elastic_plastic", solver="newton")

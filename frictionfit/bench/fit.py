@@ -8,7 +8,9 @@ coordinates):
   implementation of the model (:func:`numpy_predict`, a per-sample Python loop;
   finite-difference Jacobian), trial by trial;
 * ``scipy-jax``: the same scipy solver driven by the jitted JAX residual and
-  forward-mode Jacobian, trial by trial.
+  forward-mode Jacobian, trial by trial;
+* for the solver paths (:func:`_solver_paths`), optimistix's own batch:
+  ``jax.vmap(optx.least_squares)`` over chunks, in rounds (:func:`_vmapped_rounds`).
 
 Errors are median relative errors of the true model's parameters
 (``|est - true| / max(|true|, 0.05)``) over the parameters the trials identify
@@ -17,6 +19,8 @@ duration and slip-weakening length, which trade off (see :mod:`frictionfit.fit._
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 
@@ -225,9 +229,12 @@ def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,
     oks = {k: runs[k]["result"][1] for k in runs}
     points = [_point(f"{k} {name} float64", runs[k]["median_s"], sizes[k], model,
                      runs[k]["result"], sets[k]) for k in runs]
+    paths = {}
     if grid:
         points += _configs(seed, pool)
         points += _solve_configs(seed, pool)
+        path_points, paths = _solver_paths(ts, model, u0, pool)
+        points += path_points
     summary = {
         "model": name, "n_trials": n, "n_trials_peers": n_peer,
         "trials_per_s": 1.0 / per_trial["ours"],
@@ -251,6 +258,7 @@ def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,
         "scipy_jax_success_rate": float(np.mean(oks["scipy-jax"])),
         "compile_s": float(max(first_s - runs["ours"]["median_s"], 0.0)),
         "load_average": _load(),
+        **paths,
     }
     return {"stage": "fit", "summary": summary, "points": points, "machine": machine_info()}
 
@@ -261,7 +269,8 @@ def _configs(seed: int, pool: int) -> list[dict]:
     grid = [(m.name, "lm", 1e-6, pool) for m in FAMILY]
     grid += [(DEFAULT_MODEL, "lm", 1e-4, pool), (DEFAULT_MODEL, "lm", 1e-8, pool),
              (DEFAULT_MODEL, "lm", 1e-6, pool * 4),
-             (DEFAULT_MODEL, "optx-lm", 1e-6, 32), (DEFAULT_MODEL, "dogleg", 1e-6, 32)]
+             (DEFAULT_MODEL, "optx-lm", 1e-6, 32), (DEFAULT_MODEL, "dogleg", 1e-6, 32),
+             (DEFAULT_MODEL, "gauss-newton", 1e-6, 32)]
     points = []
     for name, solver, ftol, chunk in grid:
         ts = simulate_trials(name, n, seed=seed + 1)
@@ -323,3 +332,104 @@ def _load() -> float | None:
         return float(os.getloadavg()[0])
     except OSError:
         return None
+
+
+def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
+                  reps: int = 3) -> tuple[list[dict], dict]:
+    """The solve alone (no statistics) of ``ts`` through each solver path, one host thread.
+
+    frictionfit's LM in its own pool (``solve_pool``) and as an optimistix solver
+    (:class:`~frictionfit.fit.BatchedLevenbergMarquardt`) through the refilling
+    driver (``solve_pooled``); optimistix's ``LevenbergMarquardt`` through the
+    driver and vmapped in rounds (:func:`_vmapped_rounds`). Pools and chunks of
+    ``pool``, the data-driven start, the tolerances ``fit_trials`` uses. Alternated,
+    median of ``reps``, compile apart. Returns the points and summary numbers: trials/s
+    per path and the ratios.
+    """
+    import optimistix as optx
+
+    from frictionfit.fit import BatchedLevenbergMarquardt
+    from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
+    from frictionfit.fit._optx import solve_pooled
+    from frictionfit.fit._problem import normal_fn, residual_fn
+
+    n, free, mask = len(u0), tuple(range(model.n_params)), np.isfinite(ts.y)
+    data = (np.where(mask, ts.y, 0.0), mask, (np.full(n, ts.t_out), np.full(n, ts.t_back)),
+            ts.direction, np.full(n, ts.t[0]), np.full(n, ts.t[1] - ts.t[0]), u0,
+            noise_scale(ts.y, mask))
+
+    def pooled(solver):
+        def call():
+            u, status, _ = solve_pooled(solver, residual_fn(model, free), u0, data,
+                                        pool_size=pool, max_steps=100)
+            return u, status == Status.CONVERGED
+        return call
+
+    def lm_pool():
+        u, code, _ = solve_pool(normal_fn(model, free), u0, data, LMConfig(), pool)
+        return u, code == CONVERGED
+
+    def rounds():
+        return _vmapped_rounds(model, free, u0, data, optx.LevenbergMarquardt(rtol=1e-8,
+                                                                             atol=1e-8), pool)
+
+    calls = {"lm solve_pool": lm_pool, "lm driver": pooled(BatchedLevenbergMarquardt()),
+             "optx-lm driver": pooled(optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)),
+             "optx-lm rounds": rounds}
+    runs = alternate(calls, repeats=reps, warmup=True)
+    points = [dict(_point(f"{k} {model.name} threads=1", r["median_s"], n, model,
+                          r["result"], ts), compile_s=max(r["warmup_s"] - r["median_s"], 0.0))
+              for k, r in runs.items()]
+    rate = {k: n / r["median_s"] for k, r in runs.items()}
+    summary = {}
+    for k, r in runs.items():
+        key = k.replace(" ", "_").replace("-", "_")
+        summary[f"{key}_trials_per_s"] = rate[k]
+        summary[f"{key}_success_rate"] = float(np.mean(r["result"][1]))
+    summary["lm_driver_over_solve_pool"] = rate["lm driver"] / rate["lm solve_pool"]
+    summary["optx_lm_driver_over_rounds"] = rate["optx-lm driver"] / rate["optx-lm rounds"]
+    return points, summary
+
+
+@lru_cache(maxsize=8)
+def _vmapped_solve(model: ContactModel, free: tuple[int, ...], solver, steps: int):
+    """Jitted ``jax.vmap`` of ``optx.least_squares`` for ``steps`` steps: ``(u, ok, steps)``."""
+    import equinox as eqx
+    import jax
+    import optimistix as optx
+
+    from frictionfit.fit._problem import residual_fn
+
+    def one(u0, data):
+        sol = optx.least_squares(residual_fn(model, free), solver, u0, args=data,
+                                 max_steps=steps, throw=False, options={"jac": "fwd"})
+        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+
+    return eqx.filter_jit(jax.vmap(one))
+
+
+def _vmapped_rounds(model: ContactModel, free: tuple[int, ...], u0: np.ndarray, data, solver,
+                    chunk: int, max_steps: int = 100, steps_per_round: int = 40):
+    """The plain optimistix batch: ``jax.vmap(optx.least_squares)`` over chunks of trials,
+    whose while-loop runs every trial of a chunk until the slowest finishes, in rounds of
+    ``steps_per_round`` steps; after a round, the unconverged trials are re-batched
+    (padded to ``chunk``) and restarted where they stopped. ``(u, converged)``."""
+    import jax
+    import jax.numpy as jnp
+
+    from frictionfit.fit._numerics import pad_rows
+
+    solve = _vmapped_solve(model, free, solver, min(steps_per_round, max_steps))
+    u, converged = u0.copy(), np.zeros(len(u0), dtype=bool)
+    steps, active = np.zeros(len(u0), dtype=np.int64), np.arange(len(u0))
+    while active.size:
+        for start in range(0, active.size, chunk):
+            idx = active[start:start + chunk]
+            rows = pad_rows(idx, chunk)
+            u_new, ok, taken = solve(jnp.asarray(u[rows]), jax.tree_util.tree_map(
+                lambda a, r=rows: jnp.asarray(a[r]), data))
+            u[idx], converged[idx] = np.asarray(u_new)[: idx.size], np.asarray(ok)[: idx.size]
+            steps[idx] += np.asarray(taken)[: idx.size]
+        active = active[~converged[active] & (steps[active] < max_steps)
+                        & np.all(np.isfinite(u[active]), axis=1)]
+    return u, converged

@@ -1,8 +1,9 @@
 """Batched per-trial least-squares fits of the contact-model family.
 
-The default solver is frictionfit's batched Levenberg-Marquardt
-(:mod:`frictionfit.fit._lm`, built from lineax pieces); the optimistix solvers
-(LM, dogleg, Gauss-Newton) stay selectable with ``solver=``. Results are in
+The default solver is frictionfit's Levenberg-Marquardt
+(:class:`BatchedLevenbergMarquardt`, built from lineax pieces); optimistix's LM,
+dogleg and Gauss-Newton, or any optimistix least-squares solver, are selectable with
+``solver=``, and all run in the same refilled pools of slots. Results are in
 physical units with lmfit-style statistics, identifiability flags and a status
 per trial.
 """

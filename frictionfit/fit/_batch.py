@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 
 import jax
 import numpy as np
+import optimistix as optx
 import pandas as pd
 from tqdm.auto import tqdm
 
@@ -20,10 +21,9 @@ from frictionfit.fit._guess import (
     saturated_samples,
     trial_keys,
 )
-from frictionfit.fit._lm import CONVERGED, NONFINITE, LMConfig, solve_pool
 from frictionfit.fit._numerics import pad_rows
-from frictionfit.fit._optx import OPTX_SOLVERS, solve_rounds
-from frictionfit.fit._problem import jacobian_fn, noise_scale, normal_fn
+from frictionfit.fit._optx import solve_pooled
+from frictionfit.fit._problem import jacobian_fn, noise_scale, residual_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
@@ -31,7 +31,7 @@ from frictionfit.models import FAMILY, PARAMS, get_model
 
 __all__ = ["SOLVERS", "fit_trials"]
 
-SOLVERS = ("lm", *OPTX_SOLVERS)
+SOLVERS = ("lm", "optx-lm", "dogleg", "gauss-newton")
 #: Fewest trials for which a fit shows a progress bar (on a terminal).
 PROGRESS_MIN_TRIALS = 64
 
@@ -52,14 +52,12 @@ def _at_optimum(model, free, u, data, chunk):
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """How each member is solved: solver name, its tolerances, step budget and pools."""
+    """How each member is solved: the solver (and its name), step budget and pools."""
 
     name: str
-    lm: LMConfig  # the batched LM's tolerances and step budget (``name == "lm"``)
-    rtol: float  # the optimistix solvers' tolerances
-    atol: float
+    solver: optx.AbstractLeastSquaresSolver
     max_steps: int
-    steps_per_round: int
+    segment: int  # steps per compiled call, between refills of the pool
     chunk_size: int
     threads: int
 
@@ -105,27 +103,29 @@ def _solve(model, free, starts, data, solve: SolverSettings):
     u_all = starts.reshape(n_starts * n, -1)
     data_all = jax.tree_util.tree_map(lambda a: np.concatenate([a] * n_starts), data)
     cols = list(free)
-    if solve.name == "lm":
-        # a bar on a terminal only, for batches long enough to wait for
-        with tqdm(total=len(u_all), desc=f"fitting {model.name}", unit="trial", leave=False,
-                  disable=None if len(u_all) >= PROGRESS_MIN_TRIALS else True) as bar:
-            u_free, code, steps = solve_pool(normal_fn(model, free), u_all[:, cols], data_all,
-                                             solve.lm, solve.chunk_size, threads=solve.threads,
-                                             progress=bar.update)
-        converged, nonfinite = code == CONVERGED, code == NONFINITE
-    else:
-        u_free, converged, steps = solve_rounds(
-            model, free, u_all[:, cols], data_all, solve.name, solve.rtol, solve.atol,
-            solve.max_steps, solve.steps_per_round, solve.chunk_size)
-        nonfinite = ~np.all(np.isfinite(u_free), axis=1)
+    # a bar on a terminal only, for batches long enough to wait for
+    with tqdm(total=len(u_all), desc=f"fitting {model.name}", unit="trial", leave=False,
+              disable=None if len(u_all) >= PROGRESS_MIN_TRIALS else True) as bar:
+        u_free, code, steps = solve_pooled(
+            solve.solver, residual_fn(model, free), u_all[:, cols], data_all,
+            pool_size=solve.chunk_size, max_steps=solve.max_steps, segment=solve.segment,
+            threads=solve.threads, progress=bar.update)
+    nonfinite = code == Status.NONFINITE
     u_all = u_all.copy()
     u_all[:, cols] = u_free
     resid, jtj = _at_optimum(model, free, u_all, data_all, solve.chunk_size)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is NONFINITE, not a crash
         cost = np.where(nonfinite, np.inf, np.nan_to_num(np.sum(resid**2, axis=1), nan=np.inf))
     best = np.argmin(cost.reshape(n_starts, n), axis=0) * n + np.arange(n)
-    return (u_all[best], converged[best], nonfinite[best], steps.reshape(n_starts, n).sum(0),
+    return (u_all[best], code[best], nonfinite[best], steps.reshape(n_starts, n).sum(0),
             resid[best], jtj[best])
+
+
+def _status(solver_status: int, status: Status) -> Status:
+    """A trial's status: ``status`` from its statistics, except that a fit the solver
+    stopped short of convergence for another reason than its step budget
+    (``ILL_CONDITIONED``: a singular linear solve) keeps the solver's reason."""
+    return Status(solver_status) if status == Status.MAX_STEPS else status
 
 
 def _starts(model, base, free, batch: Batch, how: MemberSettings, extra_starts):
@@ -154,7 +154,7 @@ def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: Solver
         if name in names:
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
     starts = _starts(model, base, free, batch, how, extra_starts)
-    u, converged, nonfinite, steps, resid, jtj = _solve(
+    u, code, nonfinite, steps, resid, jtj = _solve(
         model, free, starts, (*batch.data, base, batch.noise), solve)
     stats = statistics(model, u, resid, jtj, t_mask, free,
                        [n for n in how.fixed if n in names and n not in how.tied])
@@ -162,8 +162,9 @@ def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: Solver
         flag_fast_loading(stats["flags"], stats["values"], batch.dt, how.stroke_mm)
     status = np.array([
         Status.NONFINITE if nonfinite[i] and t_mask[i].sum() >= 3 * len(free)
-        else status_of(len(free), converged[i], u[i], stats["chi2"][i], stats["cond"][i],
-                       t_mask[i], saturated=batch.saturated[i])
+        else _status(code[i], status_of(len(free), code[i] == Status.CONVERGED, u[i],
+                                        stats["chi2"][i], stats["cond"][i], t_mask[i],
+                                        saturated=batch.saturated[i]))
         for i in range(u.shape[0])], dtype=np.int64)
     for i in np.flatnonzero(status == Status.INSUFFICIENT_DATA):  # no fit: no numbers
         stats["values"][i] = {k: np.nan for k in stats["values"][i]}
@@ -193,8 +194,8 @@ def _tie(fit, model, tie, groups):
 
 def fit_trials(
     y, t, drive_input, *, model: str = "auto", direction=None, drive: str = "events",
-    solver: str | BatchedLevenbergMarquardt = "lm", max_steps: int = 100,
-    steps_per_round: int = 40, chunk_size: int = 32, rtol: float = 1e-8, atol: float = 1e-8,
+    solver: str | optx.AbstractLeastSquaresSolver = "lm", max_steps: int = 100,
+    steps_per_round: int = 4, chunk_size: int = 32, rtol: float = 1e-8, atol: float = 1e-8,
     ftol: float = 1e-6, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
     fix: Mapping[str, float] | None = None, tie: Sequence[str] = (), groups=None,
     stroke_mm: float = 1.0, priors: Mapping[str, tuple[float, float] | None] | None = None,
@@ -215,15 +216,17 @@ def fit_trials(
         of the best BIC.
     direction : array (n_trials,), optional
         +1/-1 per trial; estimated from the out stroke when omitted.
-    solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or BatchedLevenbergMarquardt
-        ``"lm"``: frictionfit's batched Levenberg-Marquardt (the fastest), also given as
-        a configured object (its tolerances replace ``rtol``/``ftol``); the others are
-        the optimistix solvers, vmapped in rounds.
+    solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or an optimistix least-squares solver
+        ``"lm"``: frictionfit's :class:`BatchedLevenbergMarquardt` (the fastest); the
+        others are optimistix's ``LevenbergMarquardt``, ``Dogleg`` and ``GaussNewton``.
+        A configured solver object brings its own tolerances (``rtol``, ``atol`` and
+        ``ftol`` are then unused). Every solver runs in the same refilled pools of slots.
     max_steps, steps_per_round, chunk_size : int
-        Step budget per trial; steps per round (optimistix solvers); trials per vmapped
-        chunk (the LM's pool; 32 was the fastest, see ``docs/decisions.md``).
+        Step budget per trial; steps per compiled call, between refills of the pool;
+        slots per pool (32 was the fastest, see ``docs/decisions.md``).
     rtol, atol, ftol : float
-        Step tolerances (``rtol``: the LM's ``xtol``); relative cost decrease (``ftol``).
+        Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: the optimistix solvers'
+        only); relative cost decrease (``ftol``, the LM's).
     u0 : array (n_trials, n_params), optional
         Unconstrained starting points (a single named model only).
     n_starts, seed : int
@@ -242,8 +245,8 @@ def fit_trials(
         the log) replacing the defaults (``RAMP_PRIOR`` on ``ramp``); ``None``: flat.
         The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
-        Host threads of the ``"lm"`` solver, a pool each (results do not depend on
-        it, bit for bit). Default: the cores this process may use.
+        Host threads, a pool each (results do not depend on it, bit for bit).
+        Default: the cores this process may use.
 
     Returns
     -------
@@ -283,19 +286,30 @@ def _samples(y, t) -> tuple[np.ndarray, np.ndarray]:
 
 def _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
                      threads) -> SolverSettings:
-    """The solver's name and settings; a BatchedLevenbergMarquardt brings its tolerances."""
-    lm = BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol)
-    if isinstance(solver, BatchedLevenbergMarquardt):
-        lm, solver = solver, "lm"
-    if solver not in SOLVERS:
-        raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS} or a "
-                       "BatchedLevenbergMarquardt")
-    cfg = LMConfig(ftol=lm.ftol, xtol=lm.rtol, gtol=lm.atol, lambda0=lm.lambda0,
-                   max_steps=max_steps)
+    """The solver object and its name: a name from SOLVERS, or an object as given."""
+    if isinstance(solver, str):
+        named = {"lm": lambda: BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol),
+                 "optx-lm": lambda: optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+                 "dogleg": lambda: optx.Dogleg(rtol=rtol, atol=atol),
+                 "gauss-newton": lambda: optx.GaussNewton(rtol=rtol, atol=atol)}
+        if solver not in named:
+            raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS} or give an "
+                           "optimistix least-squares solver")
+        name, solver = solver, named[solver]()
+    elif isinstance(solver, optx.AbstractLeastSquaresSolver):
+        name = _NAMES.get(type(solver), type(solver).__name__)
+    else:
+        raise FitError(f"solver must be a name from {SOLVERS} or an optimistix "
+                       f"least-squares solver, not {type(solver).__name__}")
     return SolverSettings(
-        name=solver, lm=cfg, rtol=lm.rtol, atol=atol, max_steps=max_steps,
-        steps_per_round=steps_per_round, chunk_size=chunk_size,
+        name=name, solver=solver, max_steps=max_steps, segment=steps_per_round,
+        chunk_size=chunk_size,
         threads=available_cores() if threads is None else max(int(threads), 1))
+
+
+#: The names of SOLVERS' solver classes, for FitResult.solver.
+_NAMES = {BatchedLevenbergMarquardt: "lm", optx.LevenbergMarquardt: "optx-lm",
+          optx.Dogleg: "dogleg", optx.GaussNewton: "gauss-newton"}
 
 
 def _sample_interval(t: np.ndarray) -> float:

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 
-__all__ = ["LMConfig", "solve_pool"]
+__all__ = ["LMConfig", "in_threads", "pool_sizes", "solve_pool"]
 
 #: Per-slot codes returned by :func:`solve_pool`.
 RUNNING, CONVERGED, NONFINITE, MAX_STEPS = 0, 1, 2, 3
@@ -156,6 +156,13 @@ def _segment_fn(normal: Callable, cfg: LMConfig):
     return jax.jit(run)
 
 
+def pool_sizes(pool_size: int) -> list[int]:
+    """The pool's sizes, largest first: ``pool_size``, then ``/4`` and ``/16`` (at least 4
+    slots) for the tail of slow trials once no trial waits."""
+    return sorted({pool_size} | {pool_size // d for d in (4, 16) if pool_size // d >= 4},
+                  reverse=True)
+
+
 def _set_rows(tree, rows, values):
     """Copy ``values`` (a pytree of host arrays) into ``rows`` of ``tree`` (host arrays)."""
     leaves, treedef = jax.tree_util.tree_flatten(tree)
@@ -183,18 +190,25 @@ def solve_pool(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size:
     available cores by default.
     ``progress(k)`` is called as ``k`` more trials finish (e.g. a tqdm bar's ``update``).
     """
-    n = u0.shape[0]
+    return in_threads(lambda share, device: _solve_serial(
+        normal, u0[share], jax.tree_util.tree_map(lambda a: a[share], data), cfg, pool_size,
+        device, progress), u0.shape[0], pool_size, threads)
+
+
+def in_threads(solve_share: Callable, n: int, pool_size: int, threads: int):
+    """``solve_share(rows, device)`` over contiguous shares of ``n`` trials, one host
+    thread each (at most one per full pool), thread ``i`` on JAX device ``i`` (mod the
+    device count); the tuple of per-trial arrays of the shares, concatenated."""
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
     if threads == 1:
-        return _solve_serial(normal, u0, data, cfg, pool_size, progress=progress)
+        return solve_share(slice(0, n), None)
     bounds = np.linspace(0, n, threads + 1).astype(int)
     shares = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     devices = jax.local_devices()
     with ThreadPoolExecutor(max_workers=threads) as ex:
-        parts = list(ex.map(lambda i: _solve_serial(
-            normal, u0[shares[i]], jax.tree_util.tree_map(lambda a: a[shares[i]], data), cfg,
-            pool_size, devices[i % len(devices)], progress), range(threads)))
-    return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
+        parts = list(ex.map(lambda i: solve_share(shares[i], devices[i % len(devices)]),
+                            range(threads)))
+    return tuple(np.concatenate([part[k] for part in parts]) for k in range(len(parts[0])))
 
 
 def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_size: int,
@@ -206,8 +220,7 @@ def _solve_serial(normal: Callable, u0: np.ndarray, data, cfg: LMConfig, pool_si
     u_out = u0.copy()
     code_out = np.full(n, MAX_STEPS, np.int64)
     steps_out = np.zeros(n, np.int64)
-    sizes = sorted({pool_size} | {pool_size // d for d in (4, 16) if pool_size // d >= 4},
-                   reverse=True)
+    sizes = pool_sizes(pool_size)
     seg = _segment_fn(normal, cfg)
     b = sizes[0]
     pool = _empty_pool(b, p, dtype)

@@ -1,9 +1,10 @@
 """frictionfit's Levenberg-Marquardt as an optimistix least-squares solver.
 
 ``optx.least_squares(fn, BatchedLevenbergMarquardt(), y0)`` solves one problem with
-the same iteration (:func:`frictionfit.fit._lm.lm_iteration`: Nielsen damping,
-Marquardt scaling, MINPACK-like convergence tests) that ``fit_trials`` runs in its
-refilled pools of slots. ``y0`` must be a 1-D array.
+the iteration of :func:`frictionfit.fit._lm.lm_iteration` (Nielsen damping, Marquardt
+scaling, MINPACK-like convergence tests); ``fit_trials`` runs it, like any optimistix
+least-squares solver, in refilled pools of slots (:mod:`frictionfit.fit._optx`), with
+the same arithmetic as ``solve_pool``. ``y0`` must be a 1-D array.
 """
 
 from __future__ import annotations
