@@ -69,6 +69,7 @@ def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
         twin = numpy_residual(model, u, measurement)
         np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
 
+
 @pytest.mark.slow
 def test_solver_paths_measure_each_path_on_the_same_trials():
     from frictionfit.bench.fit import _solver_paths
