@@ -266,12 +266,11 @@ def fit_trials(
     y, t = _samples(y, t)
     solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round,
                              chunk_size, threads)
-    dt = _sample_interval(t)
     how = _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
-    batch = _prepare(y, t, dt, drive_input, drive, direction)
+    batch = _prepare(y, t, _sample_interval(t), drive_input, drive, direction)
     members = _members(model, how)
-    u0 = None if model == "auto" else u0
-    fits, inits = _fit_family(members, batch, solve, how, u0, tie, groups)
+    fits, inits = _fit_family(members, batch, solve, how, None if model == "auto" else u0,
+                              tie, groups)
     return _assemble(fits, inits, batch, how, solve.name, model == "auto", start)
 
 
