@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.models import MeasurementModel
+from frictionfit.segmentation import moving_average
 
 __all__ = ["DERIVED", "HOLD_S", "SLIP_BAND", "SLIP_S", "derived_quantities"]
 
@@ -66,8 +67,7 @@ def _held_fn(model: MeasurementModel):
 def _band_rms(x: np.ndarray) -> float:
     """RMS of ``x`` between its two moving averages of :data:`SLIP_BAND` (edges dropped)."""
     short, long = SLIP_BAND
-    band = (np.convolve(x, np.ones(short) / short, mode="same")
-            - np.convolve(x, np.ones(long) / long, mode="same"))[long:-long]
+    band = (moving_average(x, short) - moving_average(x, long))[long:-long]
     return float(np.sqrt(np.mean(band**2)))
 
 
