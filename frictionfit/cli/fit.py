@@ -187,10 +187,28 @@ def _usable(f: Path):
     return rec
 
 
+def _prepared(files: list[Path], strict: bool, prepare):
+    """``(recording, prepare(recording))`` of each usable file, in order. A file that cannot
+    be read or prepared, or whose problems make its numbers wrong, is skipped by name (one bad
+    file never sinks the batch; ``strict``: the command stops)."""
+    from frictionfit.errors import FrictionfitError
+
+    for f in files:
+        try:
+            rec = _usable(f)
+            prepared = prepare(rec)
+        except (FrictionfitError, ValueError) as exc:
+            if strict:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+            typer.echo(f"skipped {exc}", err=True)
+            continue
+        yield rec, prepared
+
+
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
                fixed: dict, priors: dict | None, stroke_mm: float, output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each."""
-    from frictionfit.errors import FrictionfitError
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
@@ -204,16 +222,8 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
     items, problems = [], []
-    for f in files:
-        try:
-            rec = _usable(f)
-            found = [measurement_data(rec, ch, stroke_mm=stroke_mm) for ch in channels]
-        except (FrictionfitError, ValueError) as exc:
-            if strict:
-                typer.echo(f"error: {exc}", err=True)
-                raise typer.Exit(2) from None
-            typer.echo(f"skipped {exc}", err=True)  # one bad file never sinks the batch
-            continue
+    for rec, found in _prepared(files, strict, lambda rec: [
+            measurement_data(rec, ch, stroke_mm=stroke_mm) for ch in channels]):
         items += found
         problems += ["; ".join(f"[{p.kind}] {p}" for p in rec.problems)] * len(found)
     if not items:
@@ -250,22 +260,12 @@ def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[
     (named on stderr); how many recordings were used. A recording that cannot be read or
     segmented, or whose problems make its numbers wrong, is skipped by name (``strict``:
     the command stops)."""
-    from frictionfit.errors import FrictionfitError
     from frictionfit.segmentation import segment
 
     batches: dict[float, _Batch] = {}
     problems: dict[str, str] = {}
     used = 0
-    for f in files:
-        try:
-            rec = _usable(f)
-            motions = segment(rec)
-        except FrictionfitError as exc:
-            if strict:
-                typer.echo(f"error: {exc}", err=True)
-                raise typer.Exit(2) from None
-            typer.echo(f"skipped {exc}", err=True)  # one bad file never sinks the batch
-            continue
+    for rec, motions in _prepared(files, strict, segment):
         used += 1
         problems[rec.name] = "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
         for m in motions:
