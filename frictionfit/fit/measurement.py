@@ -412,16 +412,15 @@ def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[st
     return held
 
 
-#: ``(ftol, xtol)`` of a first fit that a second one polishes: it only has to come near the
-#: optimum. On 96 lab recordings: 36 % fewer steps in all, the same statuses, the final
-#: parameters within 0.2 % (median; tau 0.8 %).
-FIRST_FIT_TOLERANCES = (1e-4, 1e-6)
+#: The LM's tolerances for a first fit that a second one polishes: it only has to come near
+#: the optimum (docs/decisions.md, "Whole-measurement fits").
+FIRST_FIT_TOLERANCES = {"ftol": 1e-4, "xtol": 1e-6}
 
 
 def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
-         tolerances: tuple[float, float] | None = None) -> FitResult:
+         tolerances: Mapping[str, float] | None = None) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
-    ``tolerances``: ``(ftol, xtol)`` in place of the LM's defaults."""
+    ``tolerances``: :class:`~frictionfit.fit._lm.LMConfig` tolerances in place of its defaults."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:
@@ -439,8 +438,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
         u_free, code, steps = solve_pool(normal, base[:, free], data,
-                                         _config(max_steps, tolerances), pool_size, threads,
-                                         progress=bar.update)
+                                         LMConfig(max_steps=max_steps, **(tolerances or {})),
+                                         pool_size, threads, progress=bar.update)
     u = base.copy()
     u[:, free] = u_free
     if not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix):
@@ -470,13 +469,6 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         init=[_physical_init(model, d.guess) for d in items],
         correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model),
         derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
-
-
-def _config(max_steps: int, tolerances: tuple[float, float] | None) -> LMConfig:
-    """The LM's settings: the default tolerances, or ``(ftol, xtol)``."""
-    if tolerances is None:
-        return LMConfig(max_steps=max_steps)
-    return LMConfig(ftol=tolerances[0], xtol=tolerances[1], max_steps=max_steps)
 
 
 def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
