@@ -14,7 +14,7 @@ from frictionfit.fit.measurement import (
     fit_measurements,
     measurement_data,
 )
-from frictionfit.models import MeasurementModel
+from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
 from frictionfit.recording import write_recording
 from frictionfit.simulation.measurements import motor_profile, simulate_measurements
@@ -93,6 +93,14 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     y_bar = np.sum(w2 * d.y) / np.sum(w2)
     r2 = 1 - np.sum(w2 * (pred - d.y) ** 2) / np.sum(w2 * (d.y - y_bar) ** 2)
     assert r2 == pytest.approx(res.r2[0], rel=1e-9)
+    # the kept covariance is the one the standard errors come from (delta method)
+    names = res.free_names(0)
+    assert res.cov[0].shape == (len(names), len(names)) and "offset" in names
+    j, h = names.index("k"), 1e-6
+    u_k = res.u[0][MeasurementModel(res.model[0].removeprefix("measurement-")).param_names
+                   .index("k")]
+    slope = (PARAMS["k"].to_physical(u_k + h) - PARAMS["k"].to_physical(u_k - h)) / (2 * h)
+    assert res.stderr[0]["k"] == pytest.approx(abs(slope) * np.sqrt(res.cov[0][j, j]), rel=1e-5)
 
 
 def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):

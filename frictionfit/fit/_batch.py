@@ -430,7 +430,7 @@ def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto:
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
             for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
     per_trial = {k: [r[k][i] for i, r in enumerate(rows)]
-                 for k in ("values", "stderr", "flags", "u", "correl")}
+                 for k in ("values", "stderr", "flags", "u", "correl", "cov")}
     return FitResult(
         model=list(chosen), status=pick["status"], chi2=pick["chi2"], redchi=pick["redchi"],
         aic=pick["aic"], bic=pick["bic"], r2=r2, cond=pick["cond"], n_steps=pick["steps"],

@@ -467,7 +467,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         n_steps=steps, u=list(u), direction=data[5], drive="measurement",
         drive_input=[(d.commands, d.signs) for d in items],
         init=[_physical_init(model, d.guess) for d in items],
-        correl=stats["correl"], stroke_mm=model.stroke_mm, priors=_prior_dict(model),
+        correl=stats["correl"], cov=list(stats["cov"]), stroke_mm=model.stroke_mm,
+        priors=_prior_dict(model),
         derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
 
 

@@ -51,6 +51,10 @@ class FitResult:
     derived : list of dict, optional
         Per trial, ``name -> (value, stderr)`` of quantities derived from the fit (whole
         measurements: :data:`frictionfit.fit.derived.DERIVED`, in N).
+    cov : list of ndarray, optional
+        Per trial, the covariance of the free parameters' estimates in the fit's
+        unconstrained coordinates (rows in the order of :meth:`free_names`; scaled by the
+        reduced chi-square as lmfit's ``covar``; NaN where it could not be computed).
     """
 
     model: list[str]
@@ -78,6 +82,7 @@ class FitResult:
     init: list[dict] | None = field(default=None, repr=False)
     correl: list[dict] | None = field(default=None, repr=False)
     derived: list[dict] | None = field(default=None, repr=False)
+    cov: list[np.ndarray] | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         from collections import Counter
@@ -90,6 +95,10 @@ class FitResult:
     @property
     def n_trials(self) -> int:
         return len(self.model)
+
+    def free_names(self, i: int) -> list[str]:
+        """The parameters trial ``i``'s fit varied (the rows of ``cov[i]``)."""
+        return [n for n in self.values[i] if self.flags[i].get(n) not in ("fixed", "tied")]
 
     def to_frame(self, ids=None) -> pd.DataFrame:
         """One row per trial: id, model, status, each parameter with stderr and unit, stats."""
