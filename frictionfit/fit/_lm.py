@@ -22,12 +22,12 @@ former fixed factors 0.3 / 4 alternated accepted and rejected steps: 128
 simulated relaxation trials took 15.9 steps on average, 100 at most; now 12.8 /
 60, and stick_slip trials converge in 95 % of 128 instead of 89 %.)
 
-Convergence (per slot, MINPACK-like): an accepted step that lowers the cost by
-less than ``ftol`` relatively while the damping is at most 1 (a near
-Gauss-Newton step, not a tiny damped one), or that moves every unconstrained
-parameter by less than ``xtol (1 + |u|)``; or a gradient whose largest cosine with a Jacobian
-column is below ``gtol``; or a damping that has grown past ``LAMBDA_MAX``
-(no downhill step exists: a local minimum to working precision).
+Convergence (per slot, MINPACK-like): a step (accepted or not) that changes the cost by
+less than ``ftol`` relatively while the damping is at most 1 (a near Gauss-Newton step,
+not a tiny damped one; a rejected one must also be predicted to gain less than that), or
+that moves every unconstrained parameter by less than ``xtol (1 + |u|)``; or a gradient
+whose largest cosine with a Jacobian column is below ``gtol``; or a damping that has grown
+past ``LAMBDA_MAX`` (no downhill step exists: a local minimum to working precision).
 """
 
 from __future__ import annotations
@@ -118,8 +118,15 @@ def lm_iteration(pool: _Pool, evaluated, cfg: LMConfig) -> _Pool:
     lam = jnp.where(accept & fresh, cfg.lambda0, lam)
     # MINPACK gtol: largest cosine between the residual and a Jacobian column.
     cosine = jnp.max(jnp.abs(grad) / jnp.sqrt(jnp.maximum(diag * 2.0 * cost, 1e-300)))
+    # At an optimum of a non-smooth residual every step is rejected: a rejected step whose
+    # predicted and actual changes are both below ftol (at near Gauss-Newton damping), or
+    # that is below xtol, is converged, rather than growing the damping to LAMBDA_MAX one
+    # full Jacobian at a time.
+    tiny = (predicted <= cfg.ftol * pool.cost) & (jnp.abs(decrease) <= cfg.ftol * pool.cost)
+    stalled = ~accept & ~fresh & finite & (((pool.lam <= 1.0) & tiny) | small_move)
     converged = active & (
         (accept & ~fresh & (((decrease <= cfg.ftol * cost) & (pool.lam <= 1.0)) | small_move))
+        | stalled
         | (jnp.isfinite(cost) & (cosine <= cfg.gtol))
         | (lam > LAMBDA_MAX)
     )

@@ -21,8 +21,10 @@ speed turns the loading slope into ``k``, and the carried state is simulated.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import lru_cache
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -127,22 +129,63 @@ class MeasurementModel(eqx.Module, NamedParameters):
         under way and only that one is evaluated.
         """
         v = self.physical(u)
-        last = jnp.searchsorted(commands, t, side="right") - 1  # -1: before the first
-        now = jnp.maximum(last, 0)
-        sign = jnp.where(last >= 0, signs[now], 0.0)
-        done = jnp.concatenate([jnp.zeros(1, dtype=signs.dtype), jnp.cumsum(signs)])[now]
-        pos, vel = trapezoid((t - commands[now] - v["delay"]) / v["ramp"], v["accel"])
-        return self.stroke_mm * (done + sign * pos), self.stroke_mm / v["ramp"] * sign * vel
+        return _travel(self.stroke_mm, v["delay"], v["ramp"], v["accel"], t, commands, signs)
 
     def predict(self, u, t, commands, signs, direction):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
         from rest at ``t[0]``."""
         v = self.physical(u)
         x, speed = self.finger(u, t, commands, signs)
-        dt = jnp.diff(t, prepend=2.0 * t[0] - t[1])
-        force = contact_force(x, dt, **{n: v[n] for n in self.law_names})
+        theta = jnp.stack([v[n] for n in (*self.law_names, *_RIG)])
+        force = _contact_fn(self.law, self.stroke_mm)(theta, t, commands, signs)
         force = force + v["drag"] * speed
         return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
+
+
+#: The rig's parameters, in the order the contact's force takes them after the law's.
+_RIG = ("delay", "ramp", "accel")
+
+
+def _travel(stroke_mm, delay, ramp, accel, t, commands, signs):
+    """Finger travel (mm) and velocity (mm/s): :meth:`MeasurementModel.finger` in physical
+    values."""
+    last = jnp.searchsorted(commands, t, side="right") - 1  # -1: before the first
+    now = jnp.maximum(last, 0)
+    sign = jnp.where(last >= 0, signs[now], 0.0)
+    done = jnp.concatenate([jnp.zeros(1, dtype=signs.dtype), jnp.cumsum(signs)])[now]
+    pos, vel = trapezoid((t - commands[now] - delay) / ramp, accel)
+    return stroke_mm * (done + sign * pos), stroke_mm / ramp * sign * vel
+
+
+@lru_cache(maxsize=16)
+def _contact_fn(law: str, stroke_mm: float):
+    """``force(theta, t, commands, signs)`` (N): the contact law driven by the rig, ``theta``
+    the law's parameters then :data:`_RIG` (physical).
+
+    Its derivative is the Jacobian in ``theta`` times the tangent: a Jacobian of the whole
+    model (``jacfwd``) then pushes only these parameters through the sequential contact
+    simulation, not the sensor's and the drag's, which enter after it (~25 % fewer lanes
+    in the scan). ``t``, ``commands`` and ``signs`` are data: never differentiated.
+    """
+    names = LAWS[law]
+
+    def force(theta, t, commands, signs):
+        x, _ = _travel(stroke_mm, *theta[len(names):], t, commands, signs)
+        dt = jnp.diff(t, prepend=2.0 * t[0] - t[1])
+        return contact_force(x, dt, **dict(zip(names, theta[: len(names)], strict=True)))
+
+    @jax.custom_jvp
+    def simulated(theta, t, commands, signs):
+        return force(theta, t, commands, signs)
+
+    @simulated.defjvp
+    def _(primals, tangents):
+        theta, t, commands, signs = primals
+        jac, value = jax.jacfwd(lambda th: (force(th, t, commands, signs),) * 2,
+                                has_aux=True)(theta)
+        return value, jac @ tangents[0]
+
+    return simulated
 
 
 def to_unconstrained(model: MeasurementModel, values: Mapping[str, float]) -> np.ndarray:
