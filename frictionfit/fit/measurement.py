@@ -31,7 +31,7 @@ from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import choose, statistics, status_of
+from frictionfit.fit._stats import GATE_SDS, GATED, choose, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.models import PARAMS, MeasurementModel
@@ -236,6 +236,8 @@ def fit_measurements(
     deviation (found per movement at the first optimum) and fit again; ``"rig"``: one
     latency for all. ``fix``: name -> physical value (one, or one per item) held fixed.
     ``u0``: unconstrained starting points (of the first law; default: the data's guess).
+    A larger law whose extra effect the final fit does not see (a static peak of ~0 N) is
+    refitted as the smallest and replaced where the BIC allows (:func:`_simplified`).
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``).
@@ -272,9 +274,46 @@ def fit_measurements(
                                   fix={n: np.broadcast_to(v, (len(items),))[rows]
                                        for n, v in held.items()}, **kw))
         first = _in_order(parts, chosen)
+        if len(models) > 1:
+            first = _simplified(models[0], items, first, bic, held, kw)
     first.bic_table = bic if len(models) > 1 else None
     first.wall_s = time.perf_counter() - start
     return first
+
+
+def _unseen(small: MeasurementModel, values: dict, stderr: dict) -> bool:
+    """Whether an effect of the fitted law that ``small`` lacks is not distinguished from
+    none: its size (a :data:`~frictionfit.fit._stats.GATED` size, e.g. the static excess)
+    within ``GATE_SDS`` stderr of its lower bound, or its stderr undefined."""
+    for name in set(GATED.values()) - set(small.param_names):
+        if name in values and not (values[name] - GATE_SDS * stderr[name]
+                                   > PARAMS[name].lower):
+            return True
+    return False
+
+
+def _simplified(small: MeasurementModel, items, result: FitResult, bic: pd.DataFrame,
+                held: dict, kw: dict) -> FitResult:
+    """``result`` with the rows whose larger law has an unseen effect (:func:`_unseen`: a
+    static peak of ~0 N, whose slip length and split of the friction level the data then
+    cannot tell) refitted with ``small`` from their optimum, kept where ``small``'s BIC is
+    within ``BIC_TIE`` of the larger law's on the same grid (``bic`` updated in place)."""
+    rows = np.array([i for i in range(result.n_trials) if result.model[i] != small.name
+                     and _unseen(small, result.values[i], result.stderr[i])], dtype=int)
+    if rows.size == 0:
+        return result
+    refit = _fit([items[i] for i in rows], model=small,
+                 u0=np.stack([to_unconstrained(small, result.values[i]) for i in rows]),
+                 fix={n: np.broadcast_to(v, (len(items),))[rows] for n, v in held.items()},
+                 **kw)
+    for k, i in enumerate(rows):
+        bic.iloc[i] = np.nan
+        bic.loc[i, small.name], bic.loc[i, result.model[i]] = refit.bic[k], result.bic[i]
+    simpler = np.array(choose(bic.iloc[rows])) == small.name
+    keep = np.setdiff1d(np.arange(result.n_trials), rows[simpler])
+    merged = concat_results([take_trials(result, keep),
+                             take_trials(refit, np.flatnonzero(simpler))])
+    return take_trials(merged, np.argsort(np.r_[keep, rows[simpler]]))
 
 
 #: Fewest usable blocks for a motion to be refitted on its own (a motion has ~700).
