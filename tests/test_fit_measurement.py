@@ -11,6 +11,7 @@ from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit.measurement import (
     _faster_branch_first,
+    _unseen,
     fit_measurements,
     measurement_data,
 )
@@ -72,6 +73,16 @@ def test_relabelled_branches_predict_the_same_force():
     cmd, signs = jnp.array([0.05, 1.05, 2.05, 3.05]), jnp.array([1.0, -1.0, 1.0, -1.0])
     np.testing.assert_allclose(model.predict(jnp.asarray(swapped), t, cmd, signs, 1.0),
                                model.predict(jnp.asarray(u), t, cmd, signs, 1.0), atol=1e-9)
+
+
+def test_a_static_peak_within_two_stderr_of_none_is_unseen():
+    small = MeasurementModel("no_peak2")
+    # lab fits that BIC gave the static peak: ~0 N with a slip length past the stroke
+    assert _unseen(small, {"f_static_excess": 0.006, "slip_length": 2.9},
+                   {"f_static_excess": 6.9, "slip_length": 309.0})
+    assert _unseen(small, {"f_static_excess": 0.3}, {"f_static_excess": np.nan})
+    assert not _unseen(small, {"f_static_excess": 0.53}, {"f_static_excess": 0.2})
+    assert not _unseen(small, {"f_kin": 1.0}, {"f_kin": 5.0})  # a no_peak2 fit: nothing extra
 
 
 def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
