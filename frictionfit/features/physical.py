@@ -183,7 +183,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 10  # 10: the held force, the stick-slip intensity, a coarse first motion
+    _version = 12  # 12: a static peak the final fit does not see refitted without
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
