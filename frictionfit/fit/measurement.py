@@ -272,7 +272,8 @@ def fit_measurements(
                 parts.append(_fit([items[i] for i in rows], model=m,
                                   u0=np.stack([first.u[i] for i in rows]),
                                   fix={n: np.broadcast_to(v, (len(items),))[rows]
-                                       for n, v in held.items()}, **kw))
+                                       for n, v in held.items()},
+                                  tolerances=SECOND_FIT_TOLERANCES, **kw))
         first = _in_order(parts, chosen)
         if len(models) > 1:
             first = _simplified(models[0], items, first, bic, held, kw)
@@ -454,6 +455,9 @@ def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[st
 #: The LM's tolerances for a first fit that a second one polishes: it only has to come near
 #: the optimum (docs/decisions.md, "Whole-measurement fits").
 FIRST_FIT_TOLERANCES = {"ftol": 1e-4, "xtol": 1e-6}
+#: ... and for the second: parameters within a few hundredths of their stderr of the
+#: default tolerances' optimum, at 0.8x the steps (docs/decisions.md).
+SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 
 
 def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
