@@ -1,4 +1,4 @@
-"""Quantities derived from whole-measurement fits: the held force and the stick-slip intensity."""
+"""Quantities derived from whole-measurement fits: the held and peak forces, the stick-slip."""
 
 from __future__ import annotations
 
@@ -43,6 +43,22 @@ def test_held_force_is_the_step_between_the_data_held_levels(recordings):
         steps = 0.5 * np.abs(np.diff(ends))
         assert held == pytest.approx(np.median(steps), rel=0.05)
         assert 0 < se < 0.05 * held
+
+
+def test_peak_force_is_half_the_data_swing_between_strokes(recordings):
+    items = [measurement_data(r, CHANNEL) for r in recordings]
+    res = fit_measurements(items, model="relaxation2", progress=False)
+    for d, values, derived in zip(items, res.values, res.derived, strict=True):
+        peak, se = derived["f_peak"]
+        swings = []  # per fitted out-back pair: half the data's peak-to-peak, drift removed
+        y = d.direction * (d.y - values["drift"] * d.t)
+        for c_out, c_back, c_next in zip(d.commands[2::2], d.commands[3::2], d.commands[4::2],
+                                         strict=False):
+            out = d.mask & (d.t >= c_out) & (d.t < c_back)
+            back = d.mask & (d.t >= c_back) & (d.t < c_next)
+            swings.append(0.5 * (y[out].max() - y[back].min()))
+        assert peak == pytest.approx(np.median(swings), rel=0.1)
+        assert peak > derived["f_held"][0] and 0 < se < 0.05 * peak
 
 
 def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):

@@ -1,6 +1,6 @@
-"""What a whole-measurement fit says beyond its parameters: the held force and the stick-slip.
+"""What a whole-measurement fit says beyond its parameters: held and peak forces, stick-slip.
 
-Two quantities per fitted channel, each with a standard error (``derived`` of a
+Three quantities per fitted channel, each with a standard error (``derived`` of a
 :class:`~frictionfit.fit.result.FitResult` from
 :func:`~frictionfit.fit.measurement.fit_measurements`):
 
@@ -11,6 +11,11 @@ Two quantities per fitted channel, each with a standard error (``derived`` of a
   finger's position), so their sum is what the data determine; the parameters apart trade
   off. Computed from the fitted model on an out-back-out drive with the fitted rig, drift
   removed; its standard error by the delta method from the fit's covariance.
+- ``f_peak`` (N): half the peak-to-peak swing of the fitted channel over the last two
+  strokes of the same drive (the out stroke's extreme less the back stroke's): the static
+  peak as the sensor sees it, leak included, as ``f_held`` is the held level; the law's
+  ``f_kin + f_static_excess`` alone trades off with the leak. Standard error as for
+  ``f_held``.
 - ``slip_noise`` (N): the stick-slip intensity, which the smooth law leaves in the residual:
   the RMS of the residual between a ``SLIP_BAND[0]``- and a ``SLIP_BAND[1]``-sample moving
   average (about 40-110 Hz at 1 kHz) within ``SLIP_S`` after each command of the fitted
@@ -34,7 +39,7 @@ from frictionfit.segmentation import moving_average
 __all__ = ["DERIVED", "HOLD_S", "SLIP_BAND", "SLIP_S", "derived_quantities"]
 
 #: Name -> unit of the derived quantities.
-DERIVED = {"f_held": "N", "slip_noise": "N"}
+DERIVED = {"f_held": "N", "f_peak": "N", "slip_noise": "N"}
 #: Hold (s) between the commands of the drive on which ``f_held`` is read (the protocol's).
 HOLD_S = 1.0
 #: Seconds after each command in which ``slip_noise`` is measured.
@@ -46,19 +51,21 @@ MIN_MOVEMENTS = 3
 
 
 @lru_cache(maxsize=16)
-def _held_fn(model: MeasurementModel):
-    """Jitted, vmapped ``(u, direction) -> (held step / 2, its gradient)``."""
+def _levels_fn(model: MeasurementModel):
+    """Jitted, vmapped ``(u, direction) -> ((f_held, f_peak), their gradients)`` (signed)."""
     drift = model.param_names.index("drift")
     t = jnp.arange(0.0, 3 * HOLD_S, 1e-3)
     commands, signs = jnp.array([0.0, HOLD_S, 2 * HOLD_S]), jnp.array([1.0, -1.0, 1.0])
-    back_end, out_end = round(2 * HOLD_S / 1e-3) - 1, t.size - 1
+    back_start, out_start = round(HOLD_S / 1e-3), round(2 * HOLD_S / 1e-3)
 
-    def held(u, direction):
-        pred = model.predict(u.at[drift].set(0.0), t, commands, signs, direction)
-        return 0.5 * (pred[out_end] - pred[back_end])
+    def levels(u, direction):
+        pred = direction * model.predict(u.at[drift].set(0.0), t, commands, signs, direction)
+        held = 0.5 * (pred[-1] - pred[out_start - 1])
+        peak = 0.5 * (jnp.max(pred[out_start:]) - jnp.min(pred[back_start:out_start]))
+        return jnp.stack([held, peak])
 
     def value_and_grad(u, direction):
-        grad, value = jax.jacfwd(lambda v: (held(v, direction),) * 2, has_aux=True)(u)
+        grad, value = jax.jacfwd(lambda v: (levels(v, direction),) * 2, has_aux=True)(u)
         return value, grad
 
     return jax.jit(jax.vmap(value_and_grad))
@@ -98,13 +105,15 @@ def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.nda
     data residuals ``weight (prediction - y)`` (padded rows); ``items``: the
     :class:`~frictionfit.fit.measurement.MeasurementData` fitted (with the commands the fit used).
     """
-    value, grad = (np.asarray(a) for a in _held_fn(model)(jnp.asarray(u), jnp.asarray(direction)))
-    grad = grad[:, list(free)]
-    var = np.einsum("ni,nij,nj->n", grad, np.nan_to_num(cov), grad)
-    var = np.where(np.all(np.isfinite(cov), axis=(1, 2)), var, np.nan)
+    value, grad = (np.asarray(a) for a in _levels_fn(model)(jnp.asarray(u),
+                                                             jnp.asarray(direction)))
+    grad = grad[:, :, list(free)]
+    var = np.einsum("nki,nij,nkj->nk", grad, np.nan_to_num(cov), grad)
+    var = np.where(np.all(np.isfinite(cov), axis=(1, 2))[:, None], var, np.nan)
+    se = np.sqrt(np.maximum(var, 0.0))
     out = []
     for i, d in enumerate(items):
         slip = _slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
-        out.append({"f_held": (float(abs(value[i])), float(np.sqrt(max(var[i], 0.0)))),
-                    "slip_noise": slip})
+        out.append({"f_held": (float(abs(value[i, 0])), float(se[i, 0])),
+                    "f_peak": (float(abs(value[i, 1])), float(se[i, 1])), "slip_noise": slip})
     return out
