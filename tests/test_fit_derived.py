@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from frictionfit.fit.derived import SLIP_S, _band_rms
+from frictionfit.fit.derived import ONSET_SAMPLES, SLIP_S, _band_rms
 from frictionfit.fit.measurement import fit_measurements, measurement_data
 from frictionfit.simulation.measurements import simulate_measurements
 
@@ -59,6 +59,20 @@ def test_peak_force_is_half_the_data_swing_between_strokes(recordings):
             swings.append(0.5 * (y[out].max() - y[back].min()))
         assert peak == pytest.approx(np.median(swings), rel=0.1)
         assert peak > derived["f_held"][0] and 0 < se < 0.05 * peak
+
+
+def test_onset_rate_is_the_data_steepest_rise_in_out_strokes(recordings):
+    items = [measurement_data(r, CHANNEL) for r in recordings]
+    res = fit_measurements(items, model="relaxation2", progress=False)
+    for d, derived in zip(items, res.derived, strict=True):
+        rate, se = derived["onset_rate"]
+        y, n = d.direction * d.y, ONSET_SAMPLES  # the grid is 1 ms while the finger moves
+        steepest = []
+        for c_out in d.commands[2::2]:
+            window = np.flatnonzero(d.mask & (d.t >= c_out) & (d.t < c_out + 0.2))
+            steepest.append(np.max(y[window[n:]] - y[window[:-n]]) / (n * 1e-3))
+        assert rate == pytest.approx(np.median(steepest), rel=0.15)
+        assert 0 < se < 0.1 * rate
 
 
 def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):

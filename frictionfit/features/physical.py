@@ -8,10 +8,11 @@ rubbing direction (``thumb_x``, ``index_x``) is fitted at once by
 the law's state carried from stroke to stroke; ``decimate`` samples per point while the
 finger moves).
 Kept, in log10 where positive: ``k`` (N/mm per nominal mm of stroke), the static
-friction level ``f_static = f_kin + f_static_excess`` (N), the held force ``f_held`` (N),
-the peak force ``f_peak`` (N, as the sensor sees it) and the stick-slip intensity ``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`) that the
-fit derives (:mod:`frictionfit.fit.derived`), ``relax_frac`` (1), ``tau`` (s) and ``drag``
-(N s/mm); never the sensor's offset, drift or leak, nor the motor's timing.
+friction level ``f_static = f_kin + f_static_excess`` (N), and what the fit derives
+(:mod:`frictionfit.fit.derived`): the held force ``f_held`` (N), the peak force ``f_peak``
+(N) and the ``onset_rate`` (N/s) as the sensor sees them, and the stick-slip intensity
+``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); ``relax_frac`` (1), ``tau`` (s) and
+``drag`` (N s/mm); never the sensor's offset, drift or leak, nor the motor's timing.
 ``with_stderr=True`` adds each one's standard error (of the log10 where logged). The
 lateral (y) channels are left to the measured quantities: the contact law does not
 describe them.
@@ -66,8 +67,10 @@ __all__ = ["FITTED", "FITTED_CHANNELS", "MEASURED", "SLIP_FLOOR_N", "FittedFeatu
 #: Fitted quantities kept (log10 of the positive ones): the law's parameters, with the
 #: static friction level ``f_static = f_kin + f_static_excess`` in place of the two (where
 #: the force droops over the whole stroke, their split is not identified; their sum is).
-FITTED = ("k", "f_static", "f_held", "f_peak", "slip_noise", "relax_frac", "tau", "drag")
-_DERIVED_UNITS = {"f_static": "N", "f_held": "N", "f_peak": "N", "slip_noise": "N"}
+FITTED = ("k", "f_static", "f_held", "f_peak", "onset_rate", "slip_noise", "relax_frac", "tau",
+          "drag")
+_DERIVED_UNITS = {"f_static": "N", "f_held": "N", "f_peak": "N", "onset_rate": "N/s",
+                  "slip_noise": "N"}
 #: The smallest ``slip_noise`` told apart (N): the sensor's resolution, about 1 mN.
 SLIP_FLOOR_N = 1e-3
 #: Channels whose force follows the contact law (fitted); the lateral ones are measured only.
@@ -183,7 +186,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 13  # 13: the peak force as the sensor sees it (f_peak)
+    _version = 15  # 15: the peak force and the onset rate as the sensor sees them
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,

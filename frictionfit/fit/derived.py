@@ -1,6 +1,6 @@
 """What a whole-measurement fit says beyond its parameters: held and peak forces, stick-slip.
 
-Three quantities per fitted channel, each with a standard error (``derived`` of a
+Four quantities per fitted channel, each with a standard error (``derived`` of a
 :class:`~frictionfit.fit.result.FitResult` from
 :func:`~frictionfit.fit.measurement.fit_measurements`):
 
@@ -16,6 +16,9 @@ Three quantities per fitted channel, each with a standard error (``derived`` of 
   peak as the sensor sees it, leak included, as ``f_held`` is the held level; the law's
   ``f_kin + f_static_excess`` alone trades off with the leak. Standard error as for
   ``f_held``.
+- ``onset_rate`` (N/s): the steepest rise of the fitted channel over ``ONSET_SAMPLES`` ms in
+  the last out stroke of the same drive: the loading as the sensor sees it (stiffness, fast
+  relaxation and leak together, at the rig's speed). Standard error as for ``f_held``.
 - ``slip_noise`` (N): the stick-slip intensity, which the smooth law leaves in the residual:
   the RMS of the residual between a ``SLIP_BAND[0]``- and a ``SLIP_BAND[1]``-sample moving
   average (about 40-110 Hz at 1 kHz) within ``SLIP_S`` after each command of the fitted
@@ -36,12 +39,14 @@ import numpy as np
 from frictionfit.models import MeasurementModel
 from frictionfit.segmentation import moving_average
 
-__all__ = ["DERIVED", "HOLD_S", "SLIP_BAND", "SLIP_S", "derived_quantities"]
+__all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities"]
 
 #: Name -> unit of the derived quantities.
-DERIVED = {"f_held": "N", "f_peak": "N", "slip_noise": "N"}
+DERIVED = {"f_held": "N", "f_peak": "N", "onset_rate": "N/s", "slip_noise": "N"}
 #: Hold (s) between the commands of the drive on which ``f_held`` is read (the protocol's).
 HOLD_S = 1.0
+#: The span (ms) of the rise in ``onset_rate``: the measured onset rate's filter.
+ONSET_SAMPLES = 9
 #: Seconds after each command in which ``slip_noise`` is measured.
 SLIP_S = 0.25
 #: The moving averages (samples) whose difference is the band of ``slip_noise``.
@@ -52,7 +57,8 @@ MIN_MOVEMENTS = 3
 
 @lru_cache(maxsize=16)
 def _levels_fn(model: MeasurementModel):
-    """Jitted, vmapped ``(u, direction) -> ((f_held, f_peak), their gradients)`` (signed)."""
+    """Jitted, vmapped ``(u, direction) -> ((f_held, f_peak, onset_rate), their gradients)``
+    (signed)."""
     drift = model.param_names.index("drift")
     t = jnp.arange(0.0, 3 * HOLD_S, 1e-3)
     commands, signs = jnp.array([0.0, HOLD_S, 2 * HOLD_S]), jnp.array([1.0, -1.0, 1.0])
@@ -62,7 +68,9 @@ def _levels_fn(model: MeasurementModel):
         pred = direction * model.predict(u.at[drift].set(0.0), t, commands, signs, direction)
         held = 0.5 * (pred[-1] - pred[out_start - 1])
         peak = 0.5 * (jnp.max(pred[out_start:]) - jnp.min(pred[back_start:out_start]))
-        return jnp.stack([held, peak])
+        rise = pred[out_start + ONSET_SAMPLES:] - pred[out_start:-ONSET_SAMPLES]
+        rate = jnp.max(rise) / (ONSET_SAMPLES * 1e-3)
+        return jnp.stack([held, peak, rate])
 
     def value_and_grad(u, direction):
         grad, value = jax.jacfwd(lambda v: (levels(v, direction),) * 2, has_aux=True)(u)
@@ -115,5 +123,6 @@ def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.nda
     for i, d in enumerate(items):
         slip = _slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
         out.append({"f_held": (float(abs(value[i, 0])), float(se[i, 0])),
-                    "f_peak": (float(abs(value[i, 1])), float(se[i, 1])), "slip_noise": slip})
+                    "f_peak": (float(abs(value[i, 1])), float(se[i, 1])),
+                    "onset_rate": (float(abs(value[i, 2])), float(se[i, 2])), "slip_noise": slip})
     return out
