@@ -84,10 +84,8 @@ def test_solver_paths_measure_each_path_on_the_same_trials():
     points, summary = _solver_paths(ts, model, u0, 4, reps=1)
     assert [p["config"] for p in points] == [
         f"{k} elastic_plastic threads=1"
-        for k in ("lm solve_pool", "lm driver", "optx-lm driver", "optx-lm rounds")]
-    # frictionfit's LM through the driver is solve_pool's arithmetic: same optima
-    assert points[0]["error"] == points[1]["error"]
-    assert points[0]["success_rate"] == points[1]["success_rate"] >= 0.75
-    for key in ("lm_driver_over_solve_pool", "optx_lm_driver_over_rounds",
+        for k in ("lm driver", "optx-lm driver", "optx-lm rounds")]
+    assert points[0]["success_rate"] >= 0.75
+    for key in ("lm_driver_trials_per_s", "optx_lm_driver_over_rounds",
                 "optx_lm_rounds_trials_per_s", "optx_lm_driver_success_rate"):
         assert np.isfinite(summary[key]) and summary[key] > 0, key

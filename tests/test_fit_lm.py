@@ -47,9 +47,9 @@ def test_result_does_not_depend_on_chunk_size(four):
 
 
 def test_threads_do_not_change_results():
-    from frictionfit.fit import initial_guess
-    from frictionfit.fit._lm import LMConfig, solve_pool
-    from frictionfit.fit._problem import noise_scale, normal_fn
+    from frictionfit.fit import BatchedLevenbergMarquardt, initial_guess
+    from frictionfit.fit._optx import solve_pooled
+    from frictionfit.fit._problem import noise_scale, residual_fn
     from frictionfit.models import get_model
 
     ts = known_truth(EP, 8, seed=5)
@@ -59,9 +59,9 @@ def test_threads_do_not_change_results():
     u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
     data = (ts.y, np.isfinite(ts.y), times, ts.direction, np.full(n, ts.t[0]),
             np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, np.isfinite(ts.y)))
-    normal = normal_fn(model, tuple(range(model.n_params)))
-    one = solve_pool(normal, u0, data, LMConfig(), 4, threads=1)
-    two = solve_pool(normal, u0, data, LMConfig(), 4, threads=2)  # two pools of 4, in threads
+    fn, lm = residual_fn(model, tuple(range(model.n_params))), BatchedLevenbergMarquardt()
+    one = solve_pooled(lm, fn, u0, data, pool_size=4, max_steps=100, threads=1)
+    two = solve_pooled(lm, fn, u0, data, pool_size=4, max_steps=100, threads=2)  # 2 pools of 4
     for a, b in zip(one, two, strict=True):
         np.testing.assert_array_equal(a, b)
 

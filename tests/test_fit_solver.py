@@ -1,4 +1,4 @@
-"""BatchedLevenbergMarquardt as an optimistix solver: one trial, the pooled twin, NIST StRD."""
+"""BatchedLevenbergMarquardt as an optimistix solver: one trial, in the pool driver, NIST StRD."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import optimistix as optx
 import pytest
 from scipy.optimize import least_squares
 
+from frictionfit.errors import Status
 from frictionfit.fit._guess import initial_guess
-from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
-from frictionfit.fit._problem import noise_scale, normal_fn, residual_fn
+from frictionfit.fit._optx import solve_pooled
+from frictionfit.fit._problem import noise_scale, residual_fn
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import get_model
 from frictionfit.simulation.trials import simulate_trials
@@ -25,16 +26,15 @@ def test_one_trial_through_optimistix_equals_the_pooled_fit():
     free = tuple(range(model.n_params))
     data = (ts.y, mask, (np.full(n, ts.t_out), np.full(n, ts.t_back)), np.ones(n),
             np.full(n, ts.t[0]), np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, mask))
-    cfg = LMConfig(max_steps=200)
-    pooled, code, steps = solve_pool(normal_fn(model, free), u0, data, cfg, 4)
     residual = residual_fn(model, free)
-    solver = BatchedLevenbergMarquardt(rtol=cfg.xtol, atol=cfg.gtol, ftol=cfg.ftol,
-                                       lambda0=cfg.lambda0)
+    solver = BatchedLevenbergMarquardt(rtol=1e-8, atol=1e-10, ftol=1e-6)
+    # 3 trials in 2 slots: the third is refilled into a slot mid-solve
+    pooled, status, steps = solve_pooled(solver, residual, u0, data, pool_size=2,
+                                         max_steps=200)
     for i in range(n):
-        one = _row(data, i)
-        sol = optx.least_squares(lambda u, d: residual(u, d), solver, jnp.asarray(u0[i]),
-                                 args=one, max_steps=cfg.max_steps, throw=False)
-        assert code[i] == CONVERGED and sol.result == optx.RESULTS.successful
+        sol = optx.least_squares(residual, solver, jnp.asarray(u0[i]), args=_row(data, i),
+                                 max_steps=200, throw=False)
+        assert status[i] == Status.CONVERGED and sol.result == optx.RESULTS.successful
         assert int(sol.stats["steps"]) == steps[i]
         np.testing.assert_allclose(np.asarray(sol.value), pooled[i], rtol=1e-8, atol=1e-12)
 

@@ -1,5 +1,5 @@
 """The refilling pool driver: any optimistix solver in it equals that solver one problem at a
-time; failures end in a status; frictionfit's LM through it equals its own pool."""
+time; failures end in a status."""
 
 from __future__ import annotations
 
@@ -12,11 +12,8 @@ import pytest
 from helpers import hard_cases, known_truth
 
 from frictionfit.errors import FitError, Status
-from frictionfit.fit import BatchedLevenbergMarquardt, fit_trials, initial_guess
-from frictionfit.fit._lm import LMConfig, solve_pool
+from frictionfit.fit import BatchedLevenbergMarquardt, fit_trials
 from frictionfit.fit._optx import RESULT_STATUS, solve_pooled
-from frictionfit.fit._problem import noise_scale, normal_fn, residual_fn
-from frictionfit.models import get_model
 
 SOLVERS = {"optx-lm": optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10),
            "dogleg": optx.Dogleg(rtol=1e-10, atol=1e-10),
@@ -81,23 +78,6 @@ def test_failures_end_in_a_status_never_a_crash_or_nan(name):
     assert (status == Status.MAX_STEPS).sum() >= 1 and steps.max() == max_steps
     np.testing.assert_array_equal(status, _one_at_a_time(SOLVERS[name], y0, (x, y),
                                                          max_steps)[1])
-
-
-def test_frictionfit_lm_through_the_driver_equals_its_own_pool():
-    model = get_model("elastic_plastic")
-    ts = known_truth("elastic_plastic", 6, seed=3)
-    n, mask = ts.n_trials, np.isfinite(ts.y)
-    times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
-    u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
-    data = (ts.y, mask, times, ts.direction, np.full(n, ts.t[0]),
-            np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, mask))
-    free = tuple(range(model.n_params))
-    own, code, own_steps = solve_pool(normal_fn(model, free), u0, data, LMConfig(), 4)
-    value, status, steps = solve_pooled(BatchedLevenbergMarquardt(), residual_fn(model, free),
-                                        u0, data, pool_size=4, max_steps=100)
-    np.testing.assert_array_equal(value, own)  # the same arithmetic, bit for bit
-    np.testing.assert_array_equal(steps, own_steps)
-    assert np.all(status == Status.CONVERGED) and len(set(steps)) > 1
 
 
 def test_fit_trials_runs_optimistix_solvers_on_hard_cases():

@@ -290,8 +290,9 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
     runs the same code on float32 data (frictionfit's default stays float64); a
     trial counts as a success when it converged with finite parameters.
     """
-    from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
-    from frictionfit.fit._problem import normal_fn
+    from frictionfit.fit import BatchedLevenbergMarquardt
+    from frictionfit.fit._optx import solve_pooled
+    from frictionfit.fit._problem import residual_fn
 
     ts = simulate_trials(DEFAULT_MODEL, n, seed=seed + 2)
     model = get_model(DEFAULT_MODEL)
@@ -305,12 +306,12 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
         data = (ts.y.astype(dtype), np.isfinite(ts.y), tuple(a.astype(dtype) for a in times),
                 ts.direction.astype(dtype), np.full(n, ts.t[0], dtype), np.full(n, dt, dtype),
                 u0.astype(dtype), noise_scale(ts.y, np.isfinite(ts.y)).astype(dtype))
-        cfg = LMConfig()
 
         def solve():
-            u, code, _ = solve_pool(normal_fn(model, free), u0.astype(dtype), data, cfg,
-                                    chunk, threads=threads)
-            ok = (code == CONVERGED) & np.all(np.isfinite(u), axis=1)
+            u, status, _ = solve_pooled(BatchedLevenbergMarquardt(), residual_fn(model, free),
+                                        u0.astype(dtype), data, pool_size=chunk,
+                                        max_steps=100, threads=threads)
+            ok = (status == Status.CONVERGED) & np.all(np.isfinite(u), axis=1)
             return u.astype(np.float64), ok
 
         return solve
@@ -338,9 +339,8 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
                   reps: int = 3) -> tuple[list[dict], dict]:
     """The solve alone (no statistics) of ``ts`` through each solver path, one host thread.
 
-    frictionfit's LM in its own pool (``solve_pool``) and as an optimistix solver
-    (:class:`~frictionfit.fit.BatchedLevenbergMarquardt`) through the refilling
-    driver (``solve_pooled``); optimistix's ``LevenbergMarquardt`` through the
+    frictionfit's LM (:class:`~frictionfit.fit.BatchedLevenbergMarquardt`) through the
+    refilling driver (``solve_pooled``); optimistix's ``LevenbergMarquardt`` through the
     driver and vmapped in rounds (:func:`_vmapped_rounds`). Pools and chunks of
     ``pool``, the data-driven start, the tolerances ``fit_trials`` uses. Alternated,
     median of ``reps``, compile apart. Returns the points and summary numbers: trials/s
@@ -349,9 +349,8 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
     import optimistix as optx
 
     from frictionfit.fit import BatchedLevenbergMarquardt
-    from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
     from frictionfit.fit._optx import solve_pooled
-    from frictionfit.fit._problem import normal_fn, residual_fn
+    from frictionfit.fit._problem import residual_fn
 
     n, free, mask = len(u0), tuple(range(model.n_params)), np.isfinite(ts.y)
     data = (np.where(mask, ts.y, 0.0), mask, (np.full(n, ts.t_out), np.full(n, ts.t_back)),
@@ -365,15 +364,11 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
             return u, status == Status.CONVERGED
         return call
 
-    def lm_pool():
-        u, code, _ = solve_pool(normal_fn(model, free), u0, data, LMConfig(), pool)
-        return u, code == CONVERGED
-
     def rounds():
         return _vmapped_rounds(model, free, u0, data, optx.LevenbergMarquardt(rtol=1e-8,
                                                                              atol=1e-8), pool)
 
-    calls = {"lm solve_pool": lm_pool, "lm driver": pooled(BatchedLevenbergMarquardt()),
+    calls = {"lm driver": pooled(BatchedLevenbergMarquardt()),
              "optx-lm driver": pooled(optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)),
              "optx-lm rounds": rounds}
     runs = alternate(calls, repeats=reps, warmup=True)
@@ -386,7 +381,6 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
         key = k.replace(" ", "_").replace("-", "_")
         summary[f"{key}_trials_per_s"] = rate[k]
         summary[f"{key}_success_rate"] = float(np.mean(r["result"][1]))
-    summary["lm_driver_over_solve_pool"] = rate["lm driver"] / rate["lm solve_pool"]
     summary["optx_lm_driver_over_rounds"] = rate["optx-lm driver"] / rate["optx-lm rounds"]
     return points, summary
 

@@ -4,7 +4,8 @@
 NaN, spikes and stuck values masked) as block means: single samples while the finger
 moves, blocks of 10 while it holds. :func:`fit_measurements` fits
 :class:`~frictionfit.models.MeasurementModel` to every item with the batched
-Levenberg-Marquardt of :func:`~frictionfit.fit._lm.solve_pool` (pools of recordings, slots
+Levenberg-Marquardt :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt` in the
+pool driver :func:`~frictionfit.fit._optx.solve_pooled` (pools of recordings, slots
 refilled): a first fit on blocks merged in pairs (each law of ``"auto"``, the larger from
 the smaller's optimum; the law by BIC), then each movement's own latency and, optionally,
 the session's rig held, and a second fit on the full grid. The first ``skip_motions``
@@ -27,13 +28,14 @@ from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
-from frictionfit.fit._lm import CONVERGED, LMConfig, solve_pool
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import scaled_condition
+from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import GATE_SDS, GATED, choose, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
+from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.recording import Recording
@@ -463,7 +465,8 @@ SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
          tolerances: Mapping[str, float] | None = None) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
-    ``tolerances``: :class:`~frictionfit.fit._lm.LMConfig` tolerances in place of its defaults."""
+    ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
+    of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:
@@ -475,14 +478,17 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         base[:, j] = PARAMS[name].to_unconstrained(np.broadcast_to(value, (len(items),)))
     free = tuple(j for j, n in enumerate(model.param_names) if n not in fix)
     data = _stack(items, base)
-    normal, _ = _normal_fn(model, free)
+    _, residual = _normal_fn(model, free)
+    # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
+    field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
+    solver = BatchedLevenbergMarquardt(**{field[k]: v for k, v in (tolerances or {}).items()})
     threads = available_cores() if threads is None else threads
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
-        u_free, code, steps = solve_pool(normal, base[:, free], data,
-                                         LMConfig(max_steps=max_steps, **(tolerances or {})),
-                                         pool_size, threads, progress=bar.update)
+        u_free, code, steps = solve_pooled(solver, residual, base[:, free], data,
+                                           pool_size=pool_size, max_steps=max_steps,
+                                           threads=threads, progress=bar.update)
     u = base.copy()
     u[:, free] = u_free
     if not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix):
@@ -501,7 +507,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     names = [model.param_names[j] for j in free]
     cond = np.array([_cond_inside(jtj[i], [stats["flags"][i].get(n) != "at bound" for n in names])
                      for i in range(len(items))])
-    status = np.array([status_of(len(free), code[i] == CONVERGED, u[i], stats["chi2"][i],
+    status = np.array([status_of(len(free), code[i] == Status.CONVERGED, u[i], stats["chi2"][i],
                                  cond[i], mask[i]) for i in range(len(items))])
     return FitResult(
         model=[model.name] * len(items), values=stats["values"], stderr=stats["stderr"],

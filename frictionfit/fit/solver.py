@@ -1,25 +1,114 @@
 """frictionfit's Levenberg-Marquardt as an optimistix least-squares solver.
 
-``optx.least_squares(fn, BatchedLevenbergMarquardt(), y0)`` solves one problem with
-the iteration of :func:`frictionfit.fit._lm.lm_iteration` (Nielsen damping, Marquardt
-scaling, MINPACK-like convergence tests); ``fit_trials`` runs it, like any optimistix
-least-squares solver, in refilled pools of slots (:mod:`frictionfit.fit._optx`), with
-the same arithmetic as ``solve_pool``. ``y0`` must be a 1-D array.
+``optx.least_squares(fn, BatchedLevenbergMarquardt(), y0)`` solves one problem;
+``fit_trials`` and the whole-measurement fits run it, like any optimistix
+least-squares solver, in refilled pools of slots (:mod:`frictionfit.fit._optx`).
+``y0`` must be a 1-D array.
+
+Each step costs one forward-mode Jacobian (``jax.jacfwd``: few parameters, thousands
+of residuals), from which only the ``p x p`` normal matrix ``J^T J`` and gradient
+``J^T r`` are kept; the damped normal equations, with Marquardt scaling (running max
+of ``diag(J^T J)``, as in MINPACK), are solved with ``lineax.Cholesky``.
+
+Damping (Nielsen's rule): an accepted step scales ``lambda`` by
+``max(1/3, 1 - (2 g - 1)^3)``, ``g`` the gain ratio of actual to predicted cost
+decrease, so a step that the linear model predicted well lowers the damping and a
+poor one keeps it; a rejected step multiplies it by :data:`REJECT_GROWTH`. (The
+former fixed factors 0.3 / 4 alternated accepted and rejected steps: 128
+simulated relaxation trials took 15.9 steps on average, 100 at most; now 12.8 /
+60, and stick_slip trials converge in 95 % of 128 instead of 89 %.)
+
+Convergence (MINPACK-like): a step (accepted or not) that changes the cost by less than
+``ftol`` relatively while the damping is at most 1 (a near Gauss-Newton step, not a tiny
+damped one; a rejected one must also be predicted to gain less than that), or that moves
+every unconstrained parameter by less than ``rtol (1 + |u|)``; or a gradient whose
+largest cosine with a Jacobian column is below ``atol``; or a damping that has grown past
+``LAMBDA_MAX`` (no downhill step exists: a local minimum to working precision).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+import lineax as lx
 import optimistix as optx
 
-from frictionfit.fit._lm import NONFINITE, RUNNING, LMConfig, _Pool, lm_iteration
-
 __all__ = ["BatchedLevenbergMarquardt"]
+
+RUNNING, CONVERGED, NONFINITE = 0, 1, 2
+LAMBDA_MAX = 1e10
+#: Damping growth after a rejected step. Each step costs a full Jacobian, accepted or
+#: not, so a rejected step is expensive: growing fast wastes fewer (measured on 128
+#: simulated trials, mean steps for 4 / 10 / 30: relaxation 13.7 / 12.8 / 12.6,
+#: stick_slip 25.5 / 20.7 / 20.8).
+REJECT_GROWTH = 10.0
+
+
+class _State(NamedTuple):
+    u: jax.Array  # (p,) accepted point
+    cand: jax.Array  # (p,) point evaluated next
+    cost: jax.Array  # () 0.5 |r|^2 at u; inf before the first evaluation
+    jtj: jax.Array  # (p, p) at u
+    grad: jax.Array  # (p,) J^T r at u
+    scale: jax.Array  # (p,) Marquardt scaling, running max of diag(J^T J)
+    lam: jax.Array  # ()
+    steps: jax.Array  # () int
+    code: jax.Array  # () int, RUNNING while active
+
+
+def _damped_step(jtj, grad, scale, lam):
+    """Solve ``(J^T J + lam diag(scale)) d = -J^T r`` (Cholesky)."""
+    op = lx.MatrixLinearOperator(jtj + jnp.diag(lam * scale), lx.positive_semidefinite_tag)
+    sol = lx.linear_solve(op, -grad, lx.Cholesky(), throw=False)
+    return sol.value
+
+
+def _iteration(s: _State, evaluated, ftol: float, xtol: float, gtol: float,
+               lambda0: float) -> _State:
+    """One LM iteration, given ``evaluated = (cost, J^T J, J^T r)`` at ``s.cand``: accept
+    or reject the candidate, update the damping and the scaling, test convergence, and
+    propose the next candidate."""
+    active = s.code == RUNNING
+    cost_c, jtj_c, grad_c = evaluated
+    finite = jnp.isfinite(cost_c) & jnp.all(jnp.isfinite(grad_c)) & jnp.all(jnp.isfinite(jtj_c))
+    fresh = jnp.isinf(s.cost)
+    accept = active & finite & (cost_c <= s.cost)
+    decrease = jnp.where(fresh, jnp.inf, s.cost - cost_c)
+    # Gain ratio: actual over predicted decrease of the step (its linear model).
+    d = s.cand - s.u
+    predicted = -(d @ s.grad + 0.5 * d @ (s.jtj @ d))
+    gain = jnp.where(predicted > 0, decrease / jnp.maximum(predicted, 1e-300), 0.0)
+    small_move = jnp.all(jnp.abs(s.cand - s.u) <= xtol * (1.0 + jnp.abs(s.u)))
+    u = jnp.where(accept, s.cand, s.u)
+    cost = jnp.where(accept, cost_c, s.cost)
+    jtj = jnp.where(accept, jtj_c, s.jtj)
+    grad = jnp.where(accept, grad_c, s.grad)
+    diag = jnp.diagonal(jtj)
+    scale = jnp.where(accept, jnp.maximum(s.scale, diag), s.scale)
+    shrink = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
+    lam = jnp.where(accept, jnp.maximum(s.lam * shrink, 1e-12), s.lam * REJECT_GROWTH)
+    lam = jnp.where(accept & fresh, lambda0, lam)
+    # MINPACK gtol: largest cosine between the residual and a Jacobian column.
+    cosine = jnp.max(jnp.abs(grad) / jnp.sqrt(jnp.maximum(diag * 2.0 * cost, 1e-300)))
+    # At an optimum of a non-smooth residual every step is rejected: a rejected step whose
+    # predicted and actual changes are both below ftol (at near Gauss-Newton damping), or
+    # that is below xtol, is converged, rather than growing the damping to LAMBDA_MAX one
+    # full Jacobian at a time.
+    tiny = (predicted <= ftol * s.cost) & (jnp.abs(decrease) <= ftol * s.cost)
+    stalled = ~accept & ~fresh & finite & (((s.lam <= 1.0) & tiny) | small_move)
+    converged = active & (
+        (accept & ~fresh & (((decrease <= ftol * cost) & (s.lam <= 1.0)) | small_move))
+        | stalled
+        | (jnp.isfinite(cost) & (cosine <= gtol))
+        | (lam > LAMBDA_MAX)
+    )
+    code = jnp.where(active & fresh & ~finite, NONFINITE, s.code)
+    code = jnp.where((code == RUNNING) & converged, CONVERGED, code)
+    cand = u + _damped_step(jtj, grad, jnp.maximum(scale, 1e-300), lam)
+    return _State(u, cand, cost, jtj, grad, scale, lam, s.steps + active, code)
 
 
 class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
@@ -57,42 +146,36 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     lambda0: float = 1e-3
     norm: Callable = optx.max_norm
 
-    def _config(self) -> LMConfig:
-        # optimistix's ``max_steps`` bounds the iterations; the slot never stops on its own
-        return LMConfig(ftol=self.ftol, xtol=self.rtol, gtol=self.atol,
-                        max_steps=np.iinfo(np.int32).max, lambda0=self.lambda0)
-
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         if jnp.ndim(y) != 1:
             raise ValueError(f"BatchedLevenbergMarquardt needs a 1-D y0, got shape "
                              f"{jnp.shape(y)}")
         p, dtype = y.shape[0], y.dtype
-        pool = _Pool(u=y, cand=y, cost=jnp.array(jnp.inf, dtype),
-                     jtj=jnp.zeros((p, p), dtype), grad=jnp.zeros(p, dtype),
-                     scale=jnp.zeros(p, dtype), lam=jnp.array(self.lambda0, dtype),
-                     steps=jnp.array(0), code=jnp.array(RUNNING))
-        return pool, jax.tree_util.tree_map(jnp.zeros_like, aux_struct)
+        state = _State(u=y, cand=y, cost=jnp.array(jnp.inf, dtype),
+                       jtj=jnp.zeros((p, p), dtype), grad=jnp.zeros(p, dtype),
+                       scale=jnp.zeros(p, dtype), lam=jnp.array(self.lambda0, dtype),
+                       steps=jnp.array(0), code=jnp.array(RUNNING))
+        return state, jax.tree_util.tree_map(jnp.zeros_like, aux_struct)
 
     def step(self, fn, y, args, options, state, tags):
-        pool, _ = state
+        s, _ = state
 
         def residual(u):
             r, aux = fn(u, args)
             return r, (r, aux)
 
-        jac, (r, aux) = jax.jacfwd(residual, has_aux=True)(pool.cand)
-        pool = lm_iteration(pool, (0.5 * r @ r, jac.T @ jac, jac.T @ r), self._config())
-        return pool.u, (pool, aux), aux
+        jac, (r, aux) = jax.jacfwd(residual, has_aux=True)(s.cand)
+        s = _iteration(s, (0.5 * r @ r, jac.T @ jac, jac.T @ r), ftol=self.ftol,
+                       xtol=self.rtol, gtol=self.atol, lambda0=self.lambda0)
+        return s.u, (s, aux), aux
 
     def terminate(self, fn, y, args, options, state, tags):
-        pool, _ = state
-        result = optx.RESULTS.where(pool.code == NONFINITE,
-                                    optx.RESULTS.nonlinear_divergence,
+        s, _ = state
+        result = optx.RESULTS.where(s.code == NONFINITE, optx.RESULTS.nonlinear_divergence,
                                     optx.RESULTS.successful)
-        return pool.code != RUNNING, result
+        return s.code != RUNNING, result
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result
                     ) -> tuple[Any, Any, dict[str, Any]]:
-        pool, _ = state
-        return pool.u, aux, {"steps": pool.steps}
-
+        s, _ = state
+        return s.u, aux, {"steps": s.steps}
