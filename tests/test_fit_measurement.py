@@ -167,8 +167,8 @@ def test_fitted_features_follow_the_sklearn_contract():
     assert list(f.get_feature_names_out()) == [
         f"{ch}:fit_{n}" for ch in ("thumb_x", "index_x")
         for n in ("k [log10 N/mm]", "f_static [log10 N]", "f_held [log10 N]",
-                  "slip_noise [log10 N]", "relax_frac [1]", "tau [log10 s]",
-                  "drag [log10 N s/mm]")]
+                  "f_peak [log10 N]", "onset_rate [log10 N/s]", "slip_noise [log10 N]",
+                  "relax_frac [1]", "tau [log10 s]", "drag [log10 N s/mm]")]
 
 
 def test_single_motions_refitted_with_the_rig_and_sensor_held(simulated):

@@ -1,4 +1,4 @@
-"""The least-squares problem of one trial: masked residual, normal equations, Jacobian.
+"""The least-squares problem of one trial: masked residual and its Jacobian.
 
 Per-trial data is a tuple ``(y, mask, drive_input, direction, t0, dt, base, noise)``:
 force samples (N, NaN replaced by 0), the finite-sample mask, the drive
@@ -24,7 +24,7 @@ import numpy as np
 
 from frictionfit.models import ContactModel
 
-__all__ = ["jacobian_fn", "noise_scale", "normal_fn", "residual_fn"]
+__all__ = ["jacobian_fn", "noise_scale", "residual_fn"]
 
 
 def noise_scale(y: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -62,22 +62,6 @@ def residual_fn(model: ContactModel, free: tuple[int, ...]):
                                 noise * model.prior_residuals(u)])
 
     return residual
-
-
-@lru_cache(maxsize=64)
-def normal_fn(model: ContactModel, free: tuple[int, ...]):
-    """``normal(u_free, data) -> (0.5 |r|^2, J^T J, J^T r)`` by one forward-mode pass."""
-    residual = residual_fn(model, free)
-
-    def normal(u_free, data):
-        def both(u):
-            r = residual(u, data)
-            return r, r
-
-        jac, r = jax.jacfwd(both, has_aux=True)(u_free)
-        return 0.5 * r @ r, jac.T @ jac, jac.T @ r
-
-    return normal
 
 
 @lru_cache(maxsize=64)
