@@ -7,7 +7,7 @@ import pytest
 
 from frictionfit.bench.fit import numpy_predict, run
 from frictionfit.bench.measurement import numpy_residual
-from frictionfit.fit.measurement import _normal_fn, _stack, measurement_data
+from frictionfit.fit.measurement import _residual_fn, _stack, measurement_data
 from frictionfit.models import FAMILY, PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.simulation.measurements import simulate_measurements
@@ -57,7 +57,7 @@ def measurement():
 @pytest.mark.parametrize("law", ["relaxation2", "no_peak2"])
 def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
     model = MeasurementModel(law)
-    _, residual = _normal_fn(model, tuple(range(model.n_params)))
+    residual = _residual_fn(model, tuple(range(model.n_params)))
     residual = jax.jit(residual)
     start = to_unconstrained(model, measurement.guess)
     # Points near the guess, not the guess itself: at its round values (accel 0.1) the JAX

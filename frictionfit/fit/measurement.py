@@ -169,10 +169,10 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
 
 
 @lru_cache(maxsize=16)
-def _normal_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """``normal(u_free, data) -> (0.5 |r|^2, J^T J, J^T r)`` over the ``free`` parameters
-    (the others from the data's ``base`` vector): masked residuals, then the priors scaled
-    by the recording's noise sd (so the optimum is the MAP estimate)."""
+def _residual_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """``residual(u_free, data)`` over the ``free`` parameters (the others from the data's
+    ``base`` vector): masked residuals, then the priors scaled by the recording's noise sd
+    (so the least-squares optimum is the MAP estimate)."""
     free_idx = jnp.asarray(free)
 
     def residual(u_free, data):
@@ -181,11 +181,7 @@ def _normal_fn(model: MeasurementModel, free: tuple[int, ...]):
         pred = model.predict(u, t, commands, signs, direction)
         return jnp.concatenate([weight * (pred - y), noise * model.prior_residuals(u)])
 
-    def normal(u_free, data):
-        jac, r = jax.jacfwd(lambda v: (residual(v, data),) * 2, has_aux=True)(u_free)
-        return 0.5 * r @ r, jac.T @ jac, jac.T @ r
-
-    return normal, residual
+    return residual
 
 
 def _stack(items: Sequence[MeasurementData], base: np.ndarray):
@@ -478,7 +474,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         base[:, j] = PARAMS[name].to_unconstrained(np.broadcast_to(value, (len(items),)))
     free = tuple(j for j, n in enumerate(model.param_names) if n not in fix)
     data = _stack(items, base)
-    _, residual = _normal_fn(model, free)
+    residual = _residual_fn(model, free)
     # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
     solver = BatchedLevenbergMarquardt(**{field[k]: v for k, v in (tolerances or {}).items()})
@@ -562,7 +558,7 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=16)
 def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data) -> (data residuals, J^T J with the prior rows)`` of one item."""
-    _, residual = _normal_fn(model, free)
+    residual = _residual_fn(model, free)
 
     def one(u_free, data):
         jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u_free)
