@@ -20,9 +20,8 @@ more than its parameter penalty: 6 of 32 stick-slip trials went to relaxation.)
 
 A parameter is flagged (not reported as a confident number) when it sits on a
 bound, when its standard error is undefined or exceeds its value, or when it is
-almost perfectly correlated (``|corr| > CORRELATED``) with another parameter and
-known to no better than ``TRADE_OFF_REL_SE``: then only a combination of the two is
-determined by the trial (for instance the
+almost perfectly correlated (``|corr| > CORRELATED``) with another parameter: then
+only a combination of the two is determined by the trial (for instance the
 stiffness, the movement duration and the slip-weakening length while the contact
 sticks on the quadratic start of the drive), and when it only shapes an effect whose
 size is not told apart from zero (``GATED``: a relaxation time without relaxation).
@@ -39,18 +38,15 @@ from frictionfit.fit._numerics import fd_slope, scaled_condition
 from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
-           "MIN_LOADING_SAMPLES", "RHO_MAX", "TRADE_OFF_REL_SE", "ar1_deviance", "choose",
-           "flag_fast_loading", "statistics", "status_of"]
+           "MIN_LOADING_SAMPLES", "RHO_MAX", "ar1_deviance", "choose", "flag_fast_loading",
+           "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
 #: BIC differences below this are ties, resolved in favour of the smaller model.
 BIC_TIE = 2.0
-#: |correlation| above which two parameters are flagged as trading off, where the
-#: parameter's relative stderr also exceeds TRADE_OFF_REL_SE (a parameter known to a few
-#: per cent is determined, however strongly its estimate moves with another's).
+#: |correlation| above which two parameters are flagged as trading off.
 CORRELATED = 0.99
-TRADE_OFF_REL_SE = 0.1
 #: A parameter that only shapes an effect (key) whose size (value) is not
 #: distinguished from its lower bound (no effect) by GATE_SDS stderr is flagged:
 #: tau of a relaxation that is not seen, the slip length of an absent static peak.
@@ -93,8 +89,7 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
             flags[par.name] = "singular"
         elif par.transform != "identity" and se > abs(v):
             flags[par.name] = "stderr > value"
-        elif (len(free) > 1 and abs(corr[jj, partner]) > CORRELATED
-              and (par.transform == "identity" or se > TRADE_OFF_REL_SE * abs(v))):
+        elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
     for shape, size in GATED.items():
         if shape in flags or size not in values or shape not in values:
