@@ -75,6 +75,29 @@ def test_onset_rate_is_the_data_steepest_rise_in_out_strokes(recordings):
         assert 0 < se < 0.1 * rate
 
 
+def test_static_level_carries_the_covariance_of_its_two_parts(recordings):
+    items = [measurement_data(r, CHANNEL) for r in recordings]
+    res = fit_measurements(items, model="relaxation2", progress=False)
+    for i in range(res.n_trials):
+        v, (static, se) = res.values[i], res.derived[i]["f_static"]
+        assert static == pytest.approx(v["f_kin"] + v["f_static_excess"], rel=1e-12)
+        model, names = res.member(i), res.free_names(i)
+        u = np.asarray(res.u[i], dtype=np.float64)
+
+        def total(w, model=model):
+            p = model.physical(w)
+            return float(p["f_kin"] + p["f_static_excess"])
+
+        grad = []  # central differences in the unconstrained coordinates of the free ones
+        for name in names:
+            j, h = model.param_names.index(name), 1e-6
+            grad.append((total(u + h * np.eye(u.size)[j]) - total(u - h * np.eye(u.size)[j]))
+                        / (2 * h))
+        grad = np.asarray(grad)
+        assert se == pytest.approx(np.sqrt(grad @ res.cov[i] @ grad), rel=1e-4)
+        assert se < np.hypot(res.stderr[i]["f_kin"], res.stderr[i]["f_static_excess"])
+
+
 def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):
     t = np.arange(0.0, SLIP_S, 1e-3)
     amplitude = 0.1  # N

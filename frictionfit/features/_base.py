@@ -8,7 +8,10 @@ motion and takes the median over a recording's motions writes
 :meth:`RecordingFeatures._motion_rows` instead, and gains ``transform_draws``: rows
 drawn from the sampling distribution of that median (a bootstrap over the motions),
 so a recording whose motions disagree, or that has few usable ones, carries that
-uncertainty to the classifier. The base class gives
+uncertainty to the classifier; a set whose values come with their own uncertainty
+(e.g. a fit's standard errors) keeps it in columns of the cached row that are not
+features (:meth:`RecordingFeatures._stored_names`) and spreads the draws by it
+(:meth:`RecordingFeatures._spread`). The base class gives
 them the scikit-learn contract (``fit`` / ``transform`` / ``get_feature_names_out``)
 and a per-recording cache: rows are stored with :class:`joblib.Memory` under
 ``$FRICTIONFIT_CACHE`` (default ``~/.cache/frictionfit``), keyed by the class, its
@@ -108,8 +111,8 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     cache: bool = True
 
     def _extract(self, recordings: Sequence[Recording]) -> np.ndarray:
-        out = np.full((len(recordings), len(self._names())), np.nan)
-        for i, rows in enumerate(self._motion_rows(recordings)):
+        out = np.full((len(recordings), len(self._stored_names())), np.nan)
+        for i, rows in enumerate(self._cached_motion_rows(list(recordings))):
             if rows is not None and len(rows):
                 out[i] = median_over_motions(rows)
         return out
@@ -121,18 +124,36 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
     def _names(self) -> list[str]:
         raise NotImplementedError
 
+    def _stored_names(self) -> list[str]:
+        """The columns ``_extract`` returns and the cache holds: the features (``_names``),
+        and any a set keeps for :meth:`_spread` only."""
+        return self._names()
+
+    def _exposed(self) -> np.ndarray:
+        """Where the features sit among the stored columns."""
+        stored = {n: j for j, n in enumerate(self._stored_names())}
+        return np.asarray([stored[n] for n in self._names()], dtype=int)
+
+    def _spread(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Draws of stored columns ``(n_draws, n, n_stored)`` spread by what a set knows of
+        each value's uncertainty beyond the bootstrap over motions (none here)."""
+        return draws
+
     def _extractor_key(self) -> str:
         params = {k: v for k, v in self.get_params(deep=False).items() if k != "cache"}
         cls = type(self)
         return joblib.hash((CACHE_VERSION, cls.__module__, cls.__qualname__, self._version,
-                            sorted((k, repr(v)) for k, v in params.items()), self._names()))
+                            sorted((k, repr(v)) for k, v in params.items()),
+                            self._stored_names()))
 
     def _rows(self, recordings: Sequence[Recording]) -> np.ndarray:
-        """Rows for ``recordings``: cached ones loaded, all missing ones extracted in one batch."""
+        """Rows of features for ``recordings``: cached ones loaded, all missing ones extracted
+        in one batch."""
         recordings = _as_list(recordings)
-        n_out = len(self._names())
+        n_out = len(self._stored_names())
         if not self.cache:
-            return self._checked(self._extract(recordings), len(recordings), n_out)
+            return self._checked(self._extract(recordings), len(recordings),
+                                 n_out)[:, self._exposed()]
         memory = joblib.Memory(cache_dir() / "features", verbose=0)
         stored = memory.cache(_stored_row, ignore=["row"])
         ekey = self._extractor_key()
@@ -157,7 +178,7 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
                 out[i] = row
             bar.update(len(block))
         bar.close()
-        return out
+        return out[:, self._exposed()]
 
     @staticmethod
     def _checked(x: np.ndarray, n_rows: int, n_out: int) -> np.ndarray:
@@ -230,21 +251,22 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         """Rows drawn from each recording's sampling distribution, ``(n_draws, n, n_features)``.
 
         For a set built from motions: the median over a bootstrap resample of the
-        recording's motions, one resample per draw; a value no resampled motion gives
-        is drawn from that feature's training values. Other sets have no such
-        distribution: every draw is the row of :meth:`transform`.
+        recording's motions, one resample per draw, spread further by :meth:`_spread`
+        (e.g. a fit's posterior); a value no resampled motion gives is drawn from that
+        feature's training values. Other sets have no such distribution: every draw is
+        the row of :meth:`transform`.
         """
         check_is_fitted(self, "fill_values_")
         X = _as_list(X)
         if type(self)._motion_rows is RecordingFeatures._motion_rows:
             rows = self.transform(X)
             return np.broadcast_to(rows, (n_draws, *rows.shape))
-        out = np.full((n_draws, len(X), self.n_features_out_), np.nan)
+        out = np.full((n_draws, len(X), len(self._stored_names())), np.nan)
         for i, rows in enumerate(self._cached_motion_rows(X)):
             if rows is not None and len(rows):
                 pick = rng.integers(0, len(rows), size=(n_draws, len(rows)))
                 out[:, i] = median_over_motions(np.moveaxis(rows[pick], 1, 0))
-        return self._drawn_where_missing(out, rng)
+        return self._drawn_where_missing(self._spread(out, rng)[..., self._exposed()], rng)
 
     def _drawn_where_missing(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Values that could not be measured, drawn from that feature's training values:

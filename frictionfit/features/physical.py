@@ -71,6 +71,7 @@ FITTED = ("k", "f_static", "f_held", "f_peak", "onset_rate", "slip_noise", "rela
           "drag")
 _DERIVED_UNITS = {"f_static": "N", "f_held": "N", "f_peak": "N", "onset_rate": "N/s",
                   "slip_noise": "N"}
+_STDERR = "_stderr ["  # marks a standard error's column: ``<name>_stderr [<unit>]``
 #: The smallest ``slip_noise`` told apart (N): the sensor's resolution, about 1 mN.
 SLIP_FLOOR_N = 1e-3
 #: Channels whose force follows the contact law (fitted); the lateral ones are measured only.
@@ -186,7 +187,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 15  # 15: the peak force and the onset rate as the sensor sees them
+    _version = 16  # 16: every fitted quantity's stderr cached, for the posterior draws
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
@@ -207,18 +208,22 @@ class PhysicalFeatures(RecordingFeatures):
         self.cache = cache
 
     # --- names -------------------------------------------------------------
-    def _fitted_names(self) -> list[str]:
+    @staticmethod
+    def _fitted_names() -> list[str]:
+        """Each fitted quantity, then its standard error (both cached; see :meth:`_names`)."""
         names = []
         for p in FITTED:
             unit = _DERIVED_UNITS.get(p) or PARAMS[p].unit
             unit = f"log10 {unit}" if p in _DERIVED_UNITS or PARAMS[p].transform == "loglogit" \
                 else unit
-            names.append(f"{p} [{unit}]")
-            if self.with_stderr:
-                names.append(f"{p}_stderr [{unit}]")
+            names += [f"{p} [{unit}]", f"{p}{_STDERR}{unit}]"]
         return names
 
     def _names(self) -> list[str]:
+        stored = self._stored_names()
+        return stored if self.with_stderr else [n for n in stored if _STDERR not in n]
+
+    def _stored_names(self) -> list[str]:
         names = []
         for ch in self.channels:
             if self.fitted and ch in FITTED_CHANNELS:
@@ -266,6 +271,27 @@ class PhysicalFeatures(RecordingFeatures):
         if getattr(self, "delegate_", None) is not None:
             return self.delegate_.get_feature_names_out(input_features)
         return super().get_feature_names_out(input_features)
+
+    def _spread(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Each fitted feature drawn from its fit's posterior (Laplace: normal about the
+        fitted value with its standard error, of the log10 where logged). A value whose
+        standard error is not finite, or exceeds the spread of that feature over the
+        training recordings, tells the recordings apart no better than chance: it is left
+        to the training values (NaN here, drawn by ``_drawn_where_missing``)."""
+        stored, names = self._stored_names(), self._names()
+        draws = draws.copy()
+        for e, name in enumerate(stored):
+            if _STDERR not in name:
+                continue
+            value_name = name.replace(_STDERR, " [")
+            j, v = names.index(value_name), stored.index(value_name)
+            seen = self.training_rows_[:, j][np.isfinite(self.training_rows_[:, j])]
+            spread = np.std(seen) if seen.size > 1 else 0.0
+            se = draws[..., e]
+            informative = np.isfinite(se) & (se <= spread)
+            noise = rng.standard_normal(se.shape) * np.where(informative, se, 0.0)
+            draws[..., v] = np.where(informative, draws[..., v] + noise, np.nan)
+        return draws
 
     # --- extraction ----------------------------------------------------------
     def _motion_rows(self, recordings: Sequence[Recording]) -> list[np.ndarray | None]:
@@ -335,20 +361,16 @@ class PhysicalFeatures(RecordingFeatures):
         return out
 
     def _fitted_row(self, values: dict, stderr: dict, derived: dict) -> list[float]:
-        """Log10 of the positive parameters (stderr of the log10 with ``with_stderr``)."""
+        """Log10 of the positive parameters, each followed by its stderr (of the log10)."""
         values, stderr = dict(values), dict(stderr)
-        excess = values.get("f_static_excess", 0.0)
-        values["f_static"] = values["f_kin"] + excess
-        stderr["f_static"] = np.hypot(stderr["f_kin"], stderr.get("f_static_excess", 0.0))
         for name, (v, se) in derived.items():
             values[name], stderr[name] = v, se
         values["slip_noise"] = max(values["slip_noise"], SLIP_FLOOR_N)
         row = []
         for p in FITTED:
             logged = p in _DERIVED_UNITS or PARAMS[p].transform == "loglogit"
-            row.append(np.log10(values[p]) if logged else values[p])
-            if self.with_stderr:
-                row.append(stderr[p] / (values[p] * np.log(10)) if logged else stderr[p])
+            row += ([np.log10(values[p]), stderr[p] / (values[p] * np.log(10))] if logged
+                    else [values[p], stderr[p]])
         return row
 
 

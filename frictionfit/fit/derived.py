@@ -1,6 +1,6 @@
 """What a whole-measurement fit says beyond its parameters: held and peak forces, stick-slip.
 
-Four quantities per fitted channel, each with a standard error (``derived`` of a
+Five quantities per fitted channel, each with a standard error (``derived`` of a
 :class:`~frictionfit.fit.result.FitResult` from
 :func:`~frictionfit.fit.measurement.fit_measurements`):
 
@@ -19,6 +19,9 @@ Four quantities per fitted channel, each with a standard error (``derived`` of a
 - ``onset_rate`` (N/s): the steepest rise of the fitted channel over ``ONSET_SAMPLES`` ms in
   the last out stroke of the same drive: the loading as the sensor sees it (stiffness, fast
   relaxation and leak together, at the rig's speed). Standard error as for ``f_held``.
+- ``f_static`` (N): the law's static friction level ``f_kin + f_static_excess`` (``f_kin``
+  for a law without a peak). Where the force droops over the whole stroke the two trade
+  off, their sum does not: its standard error by the delta method, with their covariance.
 - ``slip_noise`` (N): the stick-slip intensity, which the smooth law leaves in the residual:
   the RMS of the residual between a ``SLIP_BAND[0]``- and a ``SLIP_BAND[1]``-sample moving
   average (about 40-110 Hz at 1 kHz) within ``SLIP_S`` after each command of the fitted
@@ -42,7 +45,8 @@ from frictionfit.segmentation import moving_average
 __all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities"]
 
 #: Name -> unit of the derived quantities.
-DERIVED = {"f_held": "N", "f_peak": "N", "onset_rate": "N/s", "slip_noise": "N"}
+DERIVED = {"f_held": "N", "f_peak": "N", "onset_rate": "N/s", "f_static": "N",
+           "slip_noise": "N"}
 #: Hold (s) between the commands of the drive on which ``f_held`` is read (the protocol's).
 HOLD_S = 1.0
 #: The span (ms) of the rise in ``onset_rate``: the measured onset rate's filter.
@@ -57,8 +61,8 @@ MIN_MOVEMENTS = 3
 
 @lru_cache(maxsize=16)
 def _levels_fn(model: MeasurementModel):
-    """Jitted, vmapped ``(u, direction) -> ((f_held, f_peak, onset_rate), their gradients)``
-    (signed)."""
+    """Jitted, vmapped ``(u, direction) -> ((f_held, f_peak, onset_rate, f_static), their
+    gradients)`` (signed)."""
     drift = model.param_names.index("drift")
     t = jnp.arange(0.0, 3 * HOLD_S, 1e-3)
     commands, signs = jnp.array([0.0, HOLD_S, 2 * HOLD_S]), jnp.array([1.0, -1.0, 1.0])
@@ -70,7 +74,9 @@ def _levels_fn(model: MeasurementModel):
         peak = 0.5 * (jnp.max(pred[out_start:]) - jnp.min(pred[back_start:out_start]))
         rise = pred[out_start + ONSET_SAMPLES:] - pred[out_start:-ONSET_SAMPLES]
         rate = jnp.max(rise) / (ONSET_SAMPLES * 1e-3)
-        return jnp.stack([held, peak, rate])
+        v = model.physical(u)
+        static = v["f_kin"] + v.get("f_static_excess", 0.0)
+        return jnp.stack([held, peak, rate, static])
 
     def value_and_grad(u, direction):
         grad, value = jax.jacfwd(lambda v: (levels(v, direction),) * 2, has_aux=True)(u)
@@ -124,5 +130,6 @@ def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.nda
         slip = _slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
         out.append({"f_held": (float(abs(value[i, 0])), float(se[i, 0])),
                     "f_peak": (float(abs(value[i, 1])), float(se[i, 1])),
-                    "onset_rate": (float(abs(value[i, 2])), float(se[i, 2])), "slip_noise": slip})
+                    "onset_rate": (float(abs(value[i, 2])), float(se[i, 2])),
+                    "f_static": (float(value[i, 3]), float(se[i, 3])), "slip_noise": slip})
     return out
