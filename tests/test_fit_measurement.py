@@ -10,7 +10,11 @@ from typer.testing import CliRunner
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit.measurement import (
+    PROFILE_MIN_DROP,
+    _at_optimum,
     _faster_branch_first,
+    _ridges_checked,
+    _stack,
     _unseen,
     fit_measurements,
     measurement_data,
@@ -83,6 +87,29 @@ def test_a_static_peak_within_two_stderr_of_none_is_unseen():
     assert _unseen(small, {"f_static_excess": 0.3}, {"f_static_excess": np.nan})
     assert not _unseen(small, {"f_static_excess": 0.53}, {"f_static_excess": 0.2})
     assert not _unseen(small, {"f_kin": 1.0}, {"f_kin": 5.0})  # a no_peak2 fit: nothing extra
+
+
+@pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])
+def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gaussian(
+        simulated, scale, lifted):
+    """A covariance ``scale`` times the curvature's: 2 sd out on a profile line the cost then
+    drops by about ``2 scale``; wider than the data say (4) lifts the flags, narrower keeps
+    them (the data's posterior would be wider than the reported interval)."""
+    items = [measurement_data(simulated[0], "index_x")]
+    model = MeasurementModel("no_peak2")
+    res = fit_measurements(items, model=model, progress=False)
+    free = tuple(range(len(model.param_names)))
+    u = np.stack(res.u)
+    data = _stack(items, u)
+    _, jtj = _at_optimum(model, free, u, data)
+    names = list(model.param_names)
+    stats = {"flags": [{n: "trades off with k" for n in names if n != "k"} | {"k": "at bound"}],
+             "cov": scale * np.linalg.pinv(jtj), "values": res.values, "stderr": res.stderr}
+    _ridges_checked(model, free, u, stats, data, np.ones(1))
+    kept = [n for n, f in stats["flags"][0].items() if f.startswith("trades off")]
+    assert stats["flags"][0]["k"] == "at bound"  # other flags untouched
+    assert 2 * scale > PROFILE_MIN_DROP if lifted else 2 * scale < PROFILE_MIN_DROP
+    assert kept == ([] if lifted else [n for n in names if n != "k"])
 
 
 def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):

@@ -39,7 +39,7 @@ from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
            "MIN_LOADING_SAMPLES", "RHO_MAX", "ar1_deviance", "choose", "flag_fast_loading",
-           "statistics", "status_of"]
+           "flag_gated", "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -91,13 +91,19 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
             flags[par.name] = "stderr > value"
         elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
+    flag_gated(flags, values, errs)
+    return flags
+
+
+def flag_gated(flags: dict, values: dict, errs: dict) -> None:
+    """Flag (in place) each unflagged parameter that only shapes an effect whose size is
+    within GATE_SDS stderr of none (:data:`GATED`)."""
     for shape, size in GATED.items():
         if shape in flags or size not in values or shape not in values:
             continue
         lower = PARAMS[size].lower
         if not values[size] - GATE_SDS * errs[size] > lower + 1e-12 * max(abs(lower), 1.0):
             flags[shape] = f"{size} not distinguishable from {lower:g}"
-    return flags
 
 
 #: Samples of sticking below which the stiffness is not measured (only bounded below).

@@ -32,12 +32,12 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import GATE_SDS, GATED, choose, statistics, status_of
+from frictionfit.fit._stats import GATE_SDS, GATED, choose, flag_gated, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
-from frictionfit.models.measurement import to_unconstrained
+from frictionfit.models.measurement import RIG, to_unconstrained
 from frictionfit.recording import Recording
 from frictionfit.segmentation import moving_average, regrid, suspect_samples
 
@@ -201,10 +201,6 @@ def _stack(items: Sequence[MeasurementData], base: np.ndarray):
                       for d in items]),  # padding commands never come
             np.stack([pad(d.signs, m) for d in items]),
             np.array([d.direction for d in items]), np.array([d.noise for d in items]), base)
-
-
-#: The rig's parameters: shared by every recording of a session with ``rig="session"``.
-RIG = ("delay", "ramp", "accel")
 
 
 #: The laws ``model="auto"`` chooses from, simplest first.
@@ -497,6 +493,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     rho = np.clip(lag1_rho(resid, mask), *RHO_POSTERIOR)
     stats = statistics(model, u, resid, jtj * ((1 - rho) / (1 + rho))[:, None, None], mask,
                        free, tuple(fix))
+    _ridges_checked(model, free, u, stats, data, stats["redchi"] * (1 + rho) / (1 - rho))
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
@@ -515,6 +512,51 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         correl=stats["correl"], cov=list(stats["cov"]), stroke_mm=model.stroke_mm,
         priors=_prior_dict(model),
         derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
+
+
+#: Smallest drop of the log-posterior 2 sd out on either side of a parameter's Gaussian
+#: profile line (its covariance column; the Gaussian predicts a drop of exactly 2) for a
+#: parameter that trades off with another to keep its stderr as a (conservative) interval.
+PROFILE_MIN_DROP = 1.0
+
+
+@lru_cache(maxsize=16)
+def _cost_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted ``(points, data) -> sum of squared residuals`` (priors included) at each of
+    ``points`` (m, p_free) of one item."""
+    residual = _residual_fn(model, free)
+    return jax.jit(lambda points, data: jax.vmap(
+        lambda w: jnp.sum(residual(w, data) ** 2))(points))
+
+
+def _ridges_checked(model: MeasurementModel, free: tuple[int, ...], u: np.ndarray,
+                    stats: dict, data, s2: np.ndarray) -> None:
+    """Lift (in place) each "trades off with" flag whose parameter's log-posterior falls by
+    at least :data:`PROFILE_MIN_DROP` 2 sd out on both sides of its profile line: the
+    posterior is then no wider there than the Gaussian (it is often narrower: the drops
+    grow faster than the square along a curved ridge), and the standard error is an
+    interval that does not overstate what the data say. Along a flat or one-sided ridge (a
+    relaxation time far beyond the recording) the drop stays small and the flag stays.
+    ``s2``: per item, the variance scale of ``cov`` (the reduced chi-square times the
+    AR(1) inflation)."""
+    names = [model.param_names[j] for j in free]
+    cost = _cost_fn(model, free)
+    for i, flags in enumerate(stats["flags"]):
+        cols = [k for k, n in enumerate(names) if flags.get(n, "").startswith("trades off")]
+        cov = stats["cov"][i]
+        if not cols or not np.all(np.isfinite(cov)):
+            continue
+        line = (cov[:, cols] / np.sqrt(np.diag(cov)[cols])).T  # (c, p): the profile lines
+        at = u[i][list(free)]
+        points = np.zeros((1 + 2 * len(names), len(names)))  # one shape per model: one compile
+        points[:] = at
+        points[1:1 + 2 * len(cols)] += np.concatenate([2 * line, -2 * line])
+        c = np.asarray(cost(points, jax.tree_util.tree_map(lambda a, i=i: a[i], data)))
+        drop = (c[1:1 + 2 * len(cols)] - c[0]) / (2 * s2[i])
+        for k, d in zip(cols, drop.reshape(2, len(cols)).min(axis=0), strict=True):
+            if d >= PROFILE_MIN_DROP:
+                del flags[names[k]]
+        flag_gated(flags, stats["values"][i], stats["stderr"][i])
 
 
 def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:

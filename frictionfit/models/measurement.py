@@ -31,7 +31,7 @@ import numpy as np
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
-__all__ = ["LAWS", "MeasurementModel", "to_unconstrained", "trapezoid"]
+__all__ = ["LAWS", "RIG", "MeasurementModel", "to_unconstrained", "trapezoid"]
 
 #: Default priors of the measurement model beyond the parameters' own: the slip-weakening
 #: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with
@@ -136,14 +136,15 @@ class MeasurementModel(eqx.Module, NamedParameters):
         from rest at ``t[0]``."""
         v = self.physical(u)
         x, speed = self.finger(u, t, commands, signs)
-        theta = jnp.stack([v[n] for n in (*self.law_names, *_RIG)])
+        theta = jnp.stack([v[n] for n in (*self.law_names, *RIG)])
         force = _contact_fn(self.law, self.stroke_mm)(theta, t, commands, signs)
         force = force + v["drag"] * speed
         return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
 
 
-#: The rig's parameters, in the order the contact's force takes them after the law's.
-_RIG = ("delay", "ramp", "accel")
+#: The rig's parameters (the motor's timing), in the order the contact's force takes them
+#: after the law's.
+RIG = ("delay", "ramp", "accel")
 
 
 def _travel(stroke_mm, delay, ramp, accel, t, commands, signs):
@@ -160,7 +161,7 @@ def _travel(stroke_mm, delay, ramp, accel, t, commands, signs):
 @lru_cache(maxsize=16)
 def _contact_fn(law: str, stroke_mm: float):
     """``force(theta, t, commands, signs)`` (N): the contact law driven by the rig, ``theta``
-    the law's parameters then :data:`_RIG` (physical).
+    the law's parameters then :data:`RIG` (physical).
 
     Its derivative is the Jacobian in ``theta`` times the tangent: a Jacobian of the whole
     model (``jacfwd``) then pushes only these parameters through the sequential contact
