@@ -246,7 +246,8 @@ def fit_measurements(
     kw = dict(max_steps=max_steps, pool_size=pool_size, threads=threads, progress=progress)
     again = rig == "session" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
-    loose = dict(tolerances=FIRST_FIT_TOLERANCES) if again else {}
+    # a first fit that a second polishes: looser tolerances, and no statement of its own
+    loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
     firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw, **loose)]
     for m in models[1:]:  # each larger law starts from the smaller one's optimum
         firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw,
@@ -455,10 +456,12 @@ SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 
 
 def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
-         tolerances: Mapping[str, float] | None = None) -> FitResult:
+         tolerances: Mapping[str, float] | None = None, final: bool = True) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
     ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
-    of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults."""
+    of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults. ``final=False``
+    (a fit another one polishes): no derived quantities, and the "trades off" flags are
+    not checked along their profiles (a fifth of the CPU time of a whole-fit batch)."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:
@@ -493,7 +496,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     rho = np.clip(lag1_rho(resid, mask), *RHO_POSTERIOR)
     stats = statistics(model, u, resid, jtj * ((1 - rho) / (1 + rho))[:, None, None], mask,
                        free, tuple(fix))
-    _ridges_checked(model, free, u, stats, data, stats["redchi"] * (1 + rho) / (1 - rho))
+    if final:
+        _ridges_checked(model, free, u, stats, data, stats["redchi"] * (1 + rho) / (1 - rho))
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
@@ -511,7 +515,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         init=[_physical_init(model, d.guess) for d in items],
         correl=stats["correl"], cov=list(stats["cov"]), stroke_mm=model.stroke_mm,
         priors=_prior_dict(model),
-        derived=derived_quantities(model, free, u, stats["cov"], resid, items, data[5]))
+        derived=(derived_quantities(model, free, u, stats["cov"], resid, items, data[5])
+                 if final else None))
 
 
 #: Smallest drop of the log-posterior 2 sd out on either side of a parameter's Gaussian
