@@ -15,7 +15,6 @@ from frictionfit.fit.measurement import (
     _faster_branch_first,
     _ridges_checked,
     _stack,
-    _unseen,
     fit_measurements,
     measurement_data,
 )
@@ -77,16 +76,6 @@ def test_relabelled_branches_predict_the_same_force():
     cmd, signs = jnp.array([0.05, 1.05, 2.05, 3.05]), jnp.array([1.0, -1.0, 1.0, -1.0])
     np.testing.assert_allclose(model.predict(jnp.asarray(swapped), t, cmd, signs, 1.0),
                                model.predict(jnp.asarray(u), t, cmd, signs, 1.0), atol=1e-9)
-
-
-def test_a_static_peak_within_two_stderr_of_none_is_unseen():
-    small = MeasurementModel("no_peak2")
-    # lab fits that BIC gave the static peak: ~0 N with a slip length past the stroke
-    assert _unseen(small, {"f_static_excess": 0.006, "slip_length": 2.9},
-                   {"f_static_excess": 6.9, "slip_length": 309.0})
-    assert _unseen(small, {"f_static_excess": 0.3}, {"f_static_excess": np.nan})
-    assert not _unseen(small, {"f_static_excess": 0.53}, {"f_static_excess": 0.2})
-    assert not _unseen(small, {"f_kin": 1.0}, {"f_kin": 5.0})  # a no_peak2 fit: nothing extra
 
 
 @pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])

@@ -32,7 +32,7 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import GATE_SDS, GATED, choose, flag_gated, statistics, status_of
+from frictionfit.fit._stats import choose, flag_gated, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
@@ -230,8 +230,8 @@ def fit_measurements(
     deviation (found per movement at the first optimum) and fit again; ``"rig"``: one
     latency for all. ``fix``: name -> physical value (one, or one per item) held fixed.
     ``u0``: unconstrained starting points (of the first law; default: the data's guess).
-    A larger law whose extra effect the final fit does not see (a static peak of ~0 N) is
-    refitted as the smallest and replaced where the BIC allows (:func:`_simplified`).
+    With a second fit, every law is fitted again on the full grid (the first grid's merged
+    blocks blur a static peak into a fast relaxation) and the law chosen there.
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``).
@@ -249,67 +249,32 @@ def fit_measurements(
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
     firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw, **loose)]
-    for m in models[1:]:  # each larger law starts from the smaller one's optimum
-        firsts.append(_fit(coarse, model=m, fix=fix, u0=_extended(m, coarse, firsts[-1]), **kw,
+    for m in models[1:]:  # each law from the data's guess (or from u0, extended)
+        firsts.append(_fit(coarse, model=m, fix=fix,
+                           u0=None if u0 is None else _extended(m, coarse, firsts[-1]), **kw,
                            **loose))
-    bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, firsts, strict=True)})
-    chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
-    first = _in_order([take_trials(r, np.flatnonzero(chosen == j))
-                       for j, r in enumerate(firsts)], chosen)
+    first, chosen, bic = _by_bic(models, firsts)
     held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
         items = _with_movement_timing(models, chosen, items, first)
-    if again:
-        parts = []
-        for j, m in enumerate(models):
-            rows = np.flatnonzero(chosen == j)
-            if rows.size:
-                parts.append(_fit([items[i] for i in rows], model=m,
-                                  u0=np.stack([first.u[i] for i in rows]),
-                                  fix={n: np.broadcast_to(v, (len(items),))[rows]
-                                       for n, v in held.items()},
-                                  tolerances=SECOND_FIT_TOLERANCES, **kw))
-        first = _in_order(parts, chosen)
-        if len(models) > 1:
-            first = _simplified(models[0], items, first, bic, held, kw)
+    if again:  # every law again on the full grid, and the law chosen there
+        first, chosen, bic = _by_bic(models, [
+            _fit(items, model=m, u0=np.stack(r.u), tolerances=SECOND_FIT_TOLERANCES,
+                 fix={n: np.broadcast_to(v, (len(items),)) for n, v in held.items()}, **kw)
+            for m, r in zip(models, firsts, strict=True)])
     first.bic_table = bic if len(models) > 1 else None
     first.wall_s = time.perf_counter() - start
     return first
 
 
-def _unseen(small: MeasurementModel, values: dict, stderr: dict) -> bool:
-    """Whether an effect of the fitted law that ``small`` lacks is not distinguished from
-    none: its size (a :data:`~frictionfit.fit._stats.GATED` size, e.g. the static excess)
-    within ``GATE_SDS`` stderr of its lower bound, or its stderr undefined."""
-    for name in set(GATED.values()) - set(small.param_names):
-        if name in values and not (values[name] - GATE_SDS * stderr[name]
-                                   > PARAMS[name].lower):
-            return True
-    return False
-
-
-def _simplified(small: MeasurementModel, items, result: FitResult, bic: pd.DataFrame,
-                held: dict, kw: dict) -> FitResult:
-    """``result`` with the rows whose larger law has an unseen effect (:func:`_unseen`: a
-    static peak of ~0 N, whose slip length and split of the friction level the data then
-    cannot tell) refitted with ``small`` from their optimum, kept where ``small``'s BIC is
-    within ``BIC_TIE`` of the larger law's on the same grid (``bic`` updated in place)."""
-    rows = np.array([i for i in range(result.n_trials) if result.model[i] != small.name
-                     and _unseen(small, result.values[i], result.stderr[i])], dtype=int)
-    if rows.size == 0:
-        return result
-    refit = _fit([items[i] for i in rows], model=small,
-                 u0=np.stack([to_unconstrained(small, result.values[i]) for i in rows]),
-                 fix={n: np.broadcast_to(v, (len(items),))[rows] for n, v in held.items()},
-                 **kw)
-    for k, i in enumerate(rows):
-        bic.iloc[i] = np.nan
-        bic.loc[i, small.name], bic.loc[i, result.model[i]] = refit.bic[k], result.bic[i]
-    simpler = np.array(choose(bic.iloc[rows])) == small.name
-    keep = np.setdiff1d(np.arange(result.n_trials), rows[simpler])
-    merged = concat_results([take_trials(result, keep),
-                             take_trials(refit, np.flatnonzero(simpler))])
-    return take_trials(merged, np.argsort(np.r_[keep, rows[simpler]]))
+def _by_bic(models: list[MeasurementModel], fits: list[FitResult]
+            ) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
+    """Per item, the fit of the first law whose BIC is within ``BIC_TIE`` of the best (one
+    fit of each law in ``fits``); the law's index per item; the BIC table."""
+    bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, fits, strict=True)})
+    chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
+    return (_in_order([take_trials(r, np.flatnonzero(chosen == j)) for j, r in enumerate(fits)],
+                      chosen), chosen, bic)
 
 
 #: Fewest usable blocks for a motion to be refitted on its own (a motion has ~700).
