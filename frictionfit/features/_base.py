@@ -139,8 +139,13 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         each value's uncertainty beyond the bootstrap over motions (none here)."""
         return draws
 
+    #: Parameters that choose which stored columns are shown, not what is stored: not in the
+    #: cache key, so each view shares the rows of the others.
+    _view_params: tuple[str, ...] = ()
+
     def _extractor_key(self) -> str:
-        params = {k: v for k, v in self.get_params(deep=False).items() if k != "cache"}
+        params = {k: v for k, v in self.get_params(deep=False).items()
+                  if k != "cache" and k not in self._view_params}
         cls = type(self)
         return joblib.hash((CACHE_VERSION, cls.__module__, cls.__qualname__, self._version,
                             sorted((k, repr(v)) for k, v in params.items()),

@@ -188,6 +188,7 @@ class PhysicalFeatures(RecordingFeatures):
     """
 
     _version = 16  # 16: every fitted quantity's stderr cached, for the posterior draws
+    _view_params = ("with_stderr",)  # the stderrs are stored either way
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
