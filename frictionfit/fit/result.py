@@ -50,7 +50,7 @@ class FitResult:
         Per trial, ``(name_a, name_b) -> correlation`` of the free parameters' estimates.
     derived : list of dict, optional
         Per trial, ``name -> (value, stderr)`` of quantities derived from the fit (whole
-        measurements: :data:`frictionfit.fit.derived.DERIVED`, in N).
+        measurements: :data:`frictionfit.fit.derived.DERIVED`, with their units).
     cov : list of ndarray, optional
         Per trial, the covariance of the free parameters' estimates in the fit's
         unconstrained coordinates (rows in the order of :meth:`free_names`; scaled by the
@@ -189,8 +189,10 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
         lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{init}{warn}")
     if result.derived is not None:
         lines.append("[[Derived]]")
+        from frictionfit.fit.derived import DERIVED
+
         for name, (v, se) in result.derived[i].items():
-            lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g} N")
+            lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g} {DERIVED.get(name, '')}")
     if result.correl is not None:
         pairs = sorted(((a, b, r) for (a, b), r in result.correl[i].items()
                         if np.isfinite(r) and abs(r) >= min_correl), key=lambda x: -abs(x[2]))
