@@ -152,6 +152,27 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--fix", "stiffness=1",
                                    "--out", str(out)])
     assert bad.exit_code != 0 and "cannot fix ['stiffness']" in bad.output
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--rig", "motor",
+                                   "--out", str(out)])
+    assert bad.exit_code != 0 and "choose recording or session" in bad.output
+
+
+def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    day_one = [r for r in simulated if r.metadata["session"] == 1][:2]
+    for k, rec in enumerate(day_one):
+        write_recording(rec, tmp_path / f"r{k}")
+    out = tmp_path / "session.csv"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path), "--channel", "index_x", "--model",
+                                   "relaxation2", "--rig", "session", "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    import pandas as pd
+
+    frame = pd.read_csv(out)
+    for name in ("delay", "ramp", "accel"):  # one motor for the day: held, the same for both
+        column = next(c for c in frame.columns if c.startswith(f"{name} ["))
+        assert frame[f"{name}_flag"].tolist() == ["fixed", "fixed"]
+        assert frame[column].nunique() == 1
 
 
 def test_session_rig_holds_the_motor_of_each_day(simulated):

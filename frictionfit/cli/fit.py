@@ -25,6 +25,10 @@ def fit(
     model: str = typer.Option("auto", help="Contact law. Whole: auto (with or without a static "
                               "peak, by BIC), no_peak2, relaxation, relaxation2 or rich. "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
+    rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
+                            "fitted for each recording and channel) or session (held at the "
+                            "median of each session's first fits, then fitted again: one "
+                            "motor all day)."),
     channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
                                       "default thumb_x and index_x)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
@@ -72,11 +76,15 @@ def fit(
         if used:
             raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
                                      "--motions", param_hint="--whole")
+        if rig not in ("recording", "session"):
+            raise typer.BadParameter(f"{rig!r}: choose recording or session", param_hint="--rig")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
-                   priors, stroke_mm, _Output(out, plot, report))
+                   priors, stroke_mm, rig, _Output(out, plot, report))
         return
     if channel:
         raise typer.BadParameter("per-motion fits take every channel", param_hint="--channel")
+    if rig != "recording":
+        raise typer.BadParameter("per-motion fits fit the motor per motion", param_hint="--rig")
     if uncertainty not in ("none", "laplace", "emcee", "auto"):
         raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
                                  param_hint="--uncertainty")
@@ -207,7 +215,8 @@ def _prepared(files: list[Path], strict: bool, prepare):
 
 
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
-               fixed: dict, priors: dict | None, stroke_mm: float, output: _Output) -> None:
+               fixed: dict, priors: dict | None, stroke_mm: float, rig: str,
+               output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each."""
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
@@ -231,7 +240,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         raise typer.Exit(2)
     typer.echo(f"fitting {len(items)} recording channels whole, law={law} ...")
     try:
-        result = fit_measurements(items, model=model, fix=fixed)
+        result = fit_measurements(items, model=model, fix=fixed, rig=rig)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--fix") from None
     ids = [f"{d.name}/{d.channel}" for d in items]
