@@ -66,5 +66,10 @@ def test_from_motions_makes_one_trial_per_motion_and_channel_on_the_first_grid()
     np.testing.assert_array_equal(trials.y[-1, :n], last.samples[:n, 1])
     assert np.isnan(trials.y[-1, n:]).all()
     np.testing.assert_array_equal(trials.drive_input[0][-1], last.t_out)
+    thumb = Trials.from_motions(motions, channels=["thumb_x"])
+    np.testing.assert_array_equal(thumb.y, trials.y[1::2])
+    assert thumb.ids == trials.ids[1::2]
+    with pytest.raises(FitError, match="has no channel 'wrist_x'"):
+        Trials.from_motions(motions, channels=["wrist_x"])
     with pytest.raises(FitError, match="no motions"):
         Trials.from_motions([])

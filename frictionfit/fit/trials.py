@@ -83,23 +83,29 @@ class Trials(eqx.Module):
             np.asarray(direction, dtype=np.float64), (n,)).copy())
 
     @classmethod
-    def from_motions(cls, motions: Sequence, direction=None) -> Trials:
-        """Every channel of every motion (:class:`~frictionfit.segmentation.Motion`) as a trial,
-        on the time grid of the first motion: a longer motion is cut, a shorter one padded
-        with NaN. Ids are ``"<recording>/motion<index>/<channel>"``."""
+    def from_motions(cls, motions: Sequence, channels: Sequence[str] | None = None,
+                     direction=None) -> Trials:
+        """Each of ``channels`` (default: all) of every motion
+        (:class:`~frictionfit.segmentation.Motion`) as a trial, motion by motion, on the time
+        grid of the first motion: a longer motion is cut, a shorter one padded with NaN.
+        Ids are ``"<recording>/motion<index>/<channel>"``."""
         if not motions:
             raise FitError("no motions to make trials of")
         t = np.asarray(motions[0].t, dtype=np.float64)
         ys, t_out, t_back, ids = [], [], [], []
         for m in motions:
             n = min(t.size, m.t.size)
-            for j, ch in enumerate(m.channels):
+            names = [ch.name for ch in m.channels]
+            for name in names if channels is None else channels:
+                if name not in names:
+                    raise FitError(f"motion {m.index} of {m.recording} has no channel "
+                                   f"{name!r}; channels are {names}")
                 y = np.full(t.size, np.nan)
-                y[:n] = m.samples[:n, j]
+                y[:n] = m.samples[:n, names.index(name)]
                 ys.append(y)
                 t_out.append(m.t_out)
                 t_back.append(m.t_back)
-                ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
+                ids.append(f"{m.recording}/motion{m.index}/{name}")
         return cls.from_arrays(np.asarray(ys), t, (np.asarray(t_out), np.asarray(t_back)),
                                direction=direction, ids=ids)
 
