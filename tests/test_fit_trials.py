@@ -35,6 +35,8 @@ def test_a_given_displacement_is_carried_and_arrays_are_not_given_twice():
         fit_trials(trials, ts.t, direction=ts.direction)
     with pytest.raises(FitError, match="y has 2000 samples per trial but t has 4"):
         Trials.from_arrays(ts.y, ts.t[:4], (0.0, 0.002))
+    with pytest.raises(FitError, match="drive must be 'events' or 'given', not 'measurement'"):
+        fit_trials(ts.y, ts.t, (0.05, 1.05), drive="measurement")
 
 
 def test_take_keeps_every_per_trial_field_in_order():

@@ -69,14 +69,17 @@ class Trials(eqx.Module):
         n = y.shape[0]
         if y.shape[1] != t.size:
             raise FitError(f"y has {y.shape[1]} samples per trial but t has {t.size}")
+        if drive not in ("events", "given"):
+            raise FitError(f"drive must be 'events' or 'given', not {drive!r}")
         if drive == "events":
             drive_input = tuple(np.broadcast_to(np.asarray(a, np.float64), (n,)).copy()
                                 for a in drive_input)
         else:
             drive_input = np.asarray(drive_input, dtype=np.float64).reshape(n, t.size)
+        ids = tuple(str(i) for i in ids)
         if ids and len(ids) != n:
             raise FitError(f"{len(ids)} ids for {n} trials")
-        trials = cls(t, y, drive_input, np.zeros(n), FitResult.sample_mask(y), tuple(ids), drive)
+        trials = cls(t, y, drive_input, np.zeros(n), FitResult.sample_mask(y), ids, drive)
         if direction is None:
             direction = direction_of(t, y, *trials.guess_times)
         return replace(trials, direction=np.broadcast_to(
