@@ -62,22 +62,23 @@ def _groups(cases: Mapping[str, HardCase]) -> dict[tuple, list[str]]:
     """Cases that can share one ``fit_trials`` call: same model, length, dtype, start policy."""
     groups: dict[tuple, list[str]] = {}
     for name, c in cases.items():
-        key = (c.model, c.t.size, c.y.dtype.str, c.u0 is not None)
+        key = (c.trials.model, c.trials.t.size, c.trials.y.dtype.str, c.u0 is not None)
         groups.setdefault(key, []).append(name)
     return groups
 
 
 def _trials(group: list[HardCase]) -> Trials:
     """The trials of every case of ``group`` (one time grid), in order, as the fit takes them."""
-    t_out = np.concatenate([np.full(c.n_trials, c.t_out) for c in group])
-    t_back = np.concatenate([np.full(c.n_trials, c.t_back) for c in group])
-    return Trials.from_arrays(np.concatenate([c.y for c in group]), group[0].t, (t_out, t_back))
+    sets = [c.trials for c in group]
+    t_out = np.concatenate([np.full(s.n_trials, s.t_out) for s in sets])
+    t_back = np.concatenate([np.full(s.n_trials, s.t_back) for s in sets])
+    return Trials.from_arrays(np.concatenate([s.y for s in sets]), sets[0].t, (t_out, t_back))
 
 
 def _fit_group(group: list[HardCase], trials: Trials, solver: str, max_steps: int) -> FitResult:
     first = group[0]
     u0 = None if first.u0 is None else np.concatenate([c.u0 for c in group])
-    return fit_trials(trials, model=first.model, solver=solver, max_steps=max_steps,
+    return fit_trials(trials, model=first.trials.model, solver=solver, max_steps=max_steps,
                       chunk_size=CHUNK, u0=u0)
 
 
@@ -166,8 +167,9 @@ def _jacobian_fn(model_name: str):
 
 def gradients_finite(case: HardCase, result: CaseFit) -> bool:
     """True when the model's Jacobian is finite at the truth and at each finite fitted point."""
-    jac = _jacobian_fn(case.model)
-    t = jnp.asarray(case.t)
+    ts = case.trials
+    jac = _jacobian_fn(ts.model)
+    t = jnp.asarray(ts.t)
     points = [np.tile(truth_unconstrained(case), (case.n_trials, 1)), np.stack(result.u)]
     if case.u0 is not None:
         points.append(case.u0)
@@ -175,8 +177,8 @@ def gradients_finite(case: HardCase, result: CaseFit) -> bool:
     for u in points:
         finite = np.all(np.isfinite(u), axis=1)
         if finite.any():
-            j = jac(jnp.asarray(u[finite]), t, case.t_out, case.t_back,
-                    jnp.asarray(case.direction[finite]))
+            j = jac(jnp.asarray(u[finite]), t, ts.t_out, ts.t_back,
+                    jnp.asarray(ts.direction[finite]))
             ok &= bool(np.all(np.isfinite(np.asarray(j))))
     return ok
 
