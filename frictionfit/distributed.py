@@ -27,8 +27,9 @@ from typing import Any
 import numpy as np
 
 from frictionfit.errors import FitError
-from frictionfit.fit import FitResult, fit_trials
+from frictionfit.fit import FitResult, Trials, fit_trials
 from frictionfit.fit.result import concat_results, take_trials
+from frictionfit.fit.trials import as_trials
 
 __all__ = ["concat_results", "fit_distributed", "map_chunks", "partition", "posterior_distributed",
            "take_trials"]
@@ -75,7 +76,14 @@ def _connect(scheduler):
         raise FitError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from exc
 
 
-def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None],
+def _rows(value, rows: slice):
+    """The trials ``rows`` of a per-trial argument: an array's rows, a :class:`Trials`' trials."""
+    if value is None:
+        return None
+    return value.take(rows) if isinstance(value, Trials) else value[rows]
+
+
+def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | Trials | None],
                shared: dict[str, Any], *, scheduler, n_chunks: int | None = None) -> list[Any]:
     """Run ``func(**chunk_of_per_trial, **shared)`` on the cluster, one task per chunk.
 
@@ -83,8 +91,9 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
     ----------
     func : callable
         An importable function (workers unpickle it by name).
-    per_trial : dict of str -> array (n_trials, ...) or None
-        Arguments cut along their first axis; ``None`` entries are passed as ``None``.
+    per_trial : dict of str -> array (n_trials, ...), Trials or None
+        Arguments cut along their first axis (a :class:`~frictionfit.fit.Trials` into its
+        trials); ``None`` entries are passed as ``None``.
     shared : dict
         Arguments every chunk receives whole.
     scheduler : distributed.Client or str
@@ -101,9 +110,10 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
     try:
         if n_chunks is None:
             n_chunks = max(sum(client.nthreads().values()), 1)
-        n_trials = len(next(v for v in per_trial.values() if v is not None))
+        first = next(v for v in per_trial.values() if v is not None)
+        n_trials = first.n_trials if isinstance(first, Trials) else len(first)
         futures = [
-            client.submit(func, **{k: None if v is None else v[rows] for k, v in per_trial.items()},
+            client.submit(func, **{k: _rows(v, rows) for k, v in per_trial.items()},
                           **shared, pure=False)
             for rows in partition(n_trials, n_chunks, per_trial.get("groups"))
         ]
@@ -113,21 +123,15 @@ def map_chunks(func: Callable[..., Any], per_trial: dict[str, np.ndarray | None]
             client.close()
 
 
-def _per_trial(value, n_trials: int) -> np.ndarray:
-    return np.broadcast_to(np.asarray(value, dtype=np.float64), (n_trials,)).copy()
-
-
-def _fit_chunk(y, t_out, t_back, displacement, direction, u0, groups, *, t, drive, fit_kwargs):
-    drive_input = (t_out, t_back) if drive == "events" else displacement
+def _fit_chunk(trials, u0, groups, *, fit_kwargs):
     # One solver thread per task: the cluster's worker threads already share the cores.
-    return fit_trials(y, t, drive_input, drive=drive, direction=direction, u0=u0, groups=groups,
-                      **{"threads": 1, **fit_kwargs})
+    return fit_trials(trials, u0=u0, groups=groups, **{"threads": 1, **fit_kwargs})
 
 
 def fit_distributed(
     y,
-    t,
-    drive_input,
+    t=None,
+    drive_input=None,
     *,
     scheduler,
     n_chunks: int | None = None,
@@ -142,7 +146,8 @@ def fit_distributed(
     Parameters
     ----------
     y, t, drive_input, drive, direction, u0, groups
-        As for :func:`~frictionfit.fit.fit_trials` (force in N, times in s); with
+        As for :func:`~frictionfit.fit.fit_trials` (force in N, times in s; or ``y`` a
+        :class:`~frictionfit.fit.Trials`); with
         ``groups`` (tied parameters) no group is split across chunks.
     scheduler : distributed.Client or str
         A connected client, or the scheduler's address.
@@ -164,39 +169,31 @@ def fit_distributed(
     ...     res = fit_distributed(y, t, (t_out, t_back), scheduler=c, model="stick_slip")
     """
     start = time.perf_counter()
-    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    n = y.shape[0]
-    if drive == "events":
-        t_out, t_back = drive_input
-        per_trial = {"t_out": _per_trial(t_out, n), "t_back": _per_trial(t_back, n),
-                     "displacement": None}
-    else:
-        per_trial = {"t_out": None, "t_back": None,
-                     "displacement": np.asarray(drive_input, dtype=np.float64).reshape(n, -1)}
-    per_trial.update(
-        y=y, direction=None if direction is None else _per_trial(direction, n),
-        groups=None if groups is None else np.asarray(groups),
-        u0=None if u0 is None else np.asarray(u0, dtype=np.float64).reshape(n, -1))
-    shared = {"t": np.asarray(t, dtype=np.float64), "drive": drive, "fit_kwargs": fit_kwargs}
-    parts = map_chunks(_fit_chunk, per_trial, shared, scheduler=scheduler, n_chunks=n_chunks)
+    trials = as_trials(y, t, drive_input, drive=drive, direction=direction)
+    n = trials.n_trials
+    per_trial = {"trials": trials, "groups": None if groups is None else np.asarray(groups),
+                 "u0": None if u0 is None else np.asarray(u0, dtype=np.float64).reshape(n, -1)}
+    parts = map_chunks(_fit_chunk, per_trial, {"fit_kwargs": fit_kwargs}, scheduler=scheduler,
+                       n_chunks=n_chunks)
     return concat_results(parts, wall_s=time.perf_counter() - start)
 
 
-def _posterior_chunk(index, y, t_out, t_back, *, fit, t, seed, kwargs):
+def _posterior_chunk(index, trials, *, fit, seed, kwargs):
     from frictionfit.uncertainty import sample_posterior
 
-    return sample_posterior(take_trials(fit, index), y, t, (t_out, t_back),
-                            seed=seed + int(index[0]), **kwargs)
+    return sample_posterior(take_trials(fit, index), trials, seed=seed + int(index[0]),
+                            **kwargs)
 
 
-def posterior_distributed(fit: FitResult, y, t, drive_input, *, scheduler,
+def posterior_distributed(fit: FitResult, y, t=None, drive_input=None, *, scheduler,
                           n_chunks: int | None = None, seed: int = 0, **kwargs):
     """:func:`frictionfit.uncertainty.sample_posterior` with the trials spread over Dask.
 
     Parameters
     ----------
     fit, y, t, drive_input, seed
-        As for ``sample_posterior`` (force in N, times in s); chunk ``c`` starting at
+        As for ``sample_posterior`` (force in N, times in s; or ``y`` the fitted
+        :class:`~frictionfit.fit.Trials`); chunk ``c`` starting at
         trial ``i`` samples with ``seed + i``.
     scheduler : distributed.Client or str
         A connected client, or the scheduler's address.
@@ -216,12 +213,9 @@ def posterior_distributed(fit: FitResult, y, t, drive_input, *, scheduler,
     if kwargs.get("chains_path") is not None:
         raise FitError("chains_path is not supported on Dask: save chains per chunk locally")
     start = time.perf_counter()
-    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    n = y.shape[0]
-    t_out, t_back = drive_input
-    per_trial = {"index": np.arange(n), "y": y, "t_out": _per_trial(t_out, n),
-                 "t_back": _per_trial(t_back, n)}
-    shared = {"fit": fit, "t": np.asarray(t, dtype=np.float64), "seed": seed, "kwargs": kwargs}
+    trials = as_trials(y, t, drive_input)  # sample_posterior takes the fit's signs
+    per_trial = {"index": np.arange(trials.n_trials), "trials": trials}
+    shared = {"fit": fit, "seed": seed, "kwargs": kwargs}
     parts = map_chunks(_posterior_chunk, per_trial, shared, scheduler=scheduler,
                        n_chunks=n_chunks)
     return concat_results(parts, wall_s=time.perf_counter() - start)

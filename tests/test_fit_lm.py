@@ -47,9 +47,9 @@ def test_result_does_not_depend_on_chunk_size(four):
 
 
 def test_threads_do_not_change_results():
-    from frictionfit.fit import BatchedLevenbergMarquardt, initial_guess
+    from frictionfit.fit import BatchedLevenbergMarquardt, Trials, initial_guess
     from frictionfit.fit._optx import solve_pooled
-    from frictionfit.fit._problem import noise_scale, residual_fn
+    from frictionfit.fit._problem import Problem, residual_fn
     from frictionfit.models import get_model
 
     ts = known_truth(EP, 8, seed=5)
@@ -57,8 +57,7 @@ def test_threads_do_not_change_results():
     n = ts.n_trials
     times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
     u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
-    data = (ts.y, np.isfinite(ts.y), times, ts.direction, np.full(n, ts.t[0]),
-            np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, np.isfinite(ts.y)))
+    data = Problem.of(Trials.from_arrays(ts.y, ts.t, times, direction=ts.direction), u0)
     fn, lm = residual_fn(model, tuple(range(model.n_params))), BatchedLevenbergMarquardt()
     one = solve_pooled(lm, fn, u0, data, pool_size=4, max_steps=100, threads=1)
     two = solve_pooled(lm, fn, u0, data, pool_size=4, max_steps=100, threads=2)  # 2 pools of 4

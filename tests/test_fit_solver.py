@@ -9,9 +9,10 @@ import pytest
 from scipy.optimize import least_squares
 
 from frictionfit.errors import Status
+from frictionfit.fit import Trials
 from frictionfit.fit._guess import initial_guess
 from frictionfit.fit._optx import solve_pooled
-from frictionfit.fit._problem import noise_scale, residual_fn
+from frictionfit.fit._problem import Problem, residual_fn
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import get_model
 from frictionfit.simulation.trials import simulate_trials
@@ -21,11 +22,9 @@ def test_one_trial_through_optimistix_equals_the_pooled_fit():
     model = get_model("relaxation")
     ts = simulate_trials("relaxation", 3, seed=1)
     n = ts.y.shape[0]
-    mask = np.isfinite(ts.y)
     u0 = np.asarray(initial_guess(model, ts.t, ts.y, ts.t_out, ts.t_back, np.ones(n)))
     free = tuple(range(model.n_params))
-    data = (ts.y, mask, (np.full(n, ts.t_out), np.full(n, ts.t_back)), np.ones(n),
-            np.full(n, ts.t[0]), np.full(n, ts.t[1] - ts.t[0]), u0, noise_scale(ts.y, mask))
+    data = Problem.of(Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back), direction=1.0), u0)
     residual = residual_fn(model, free)
     solver = BatchedLevenbergMarquardt(rtol=1e-8, atol=1e-10, ftol=1e-6)
     # 3 trials in 2 slots: the third is refilled into a slot mid-solve

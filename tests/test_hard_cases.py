@@ -64,21 +64,21 @@ def test_gallery_is_deterministic_and_named():
     a = hard_cases(["pure_noise", "missing_30pct"], seed=4)
     b = hard_cases(["pure_noise", "missing_30pct"], seed=4)
     c = hard_cases(["pure_noise"], seed=5)
-    assert np.array_equal(a["pure_noise"].y, b["pure_noise"].y)
-    assert not np.array_equal(a["pure_noise"].y, c["pure_noise"].y)
-    assert np.isnan(a["missing_30pct"].y).mean() >= 0.3
-    assert np.std(a["pure_noise"].y) == pytest.approx(NOISE_SD, rel=0.1)
+    assert np.array_equal(a["pure_noise"].trials.y, b["pure_noise"].trials.y)
+    assert not np.array_equal(a["pure_noise"].trials.y, c["pure_noise"].trials.y)
+    assert np.isnan(a["missing_30pct"].trials.y).mean() >= 0.3
+    assert np.std(a["pure_noise"].trials.y) == pytest.approx(NOISE_SD, rel=0.1)
     with pytest.raises(ValueError, match=r"unknown hard case\(s\) \['sticky'\]"):
         hard_cases(["sticky"])
 
 
 def test_gallery_cases_stress_what_they_say():
     cases = hard_cases(["float32_input", "dead_channel", "clipped", "huge_offset"], seed=0)
-    assert cases["float32_input"].y.dtype == np.float32
-    assert np.ptp(cases["dead_channel"].y) == 0.0
-    clipped = cases["clipped"].y[0]
+    assert cases["float32_input"].trials.y.dtype == np.float32
+    assert np.ptp(cases["dead_channel"].trials.y) == 0.0
+    clipped = cases["clipped"].trials.y[0]
     assert np.sum(clipped == clipped.max()) + np.sum(clipped == clipped.min()) > 20
-    assert np.median(cases["huge_offset"].y) > 1e3
+    assert np.median(cases["huge_offset"].trials.y) > 1e3
 
 
 def _fake(case, flags=None, **values):

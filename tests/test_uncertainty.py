@@ -157,29 +157,53 @@ def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
     assert bad.exit_code == 2 and "choose none, laplace, emcee or auto" in bad.output
 
 
+def _spy_trials(monkeypatch) -> list:
+    """The trials each call of the posterior's log-density sees, as a list to read after."""
+    from frictionfit.uncertainty import engine
+
+    seen, real = [], engine._trial_data
+
+    def spy(trials, noise, sel=slice(None)):
+        seen.append(trials.take(sel))
+        return real(trials, noise, sel)
+
+    monkeypatch.setattr(engine, "_trial_data", spy)
+    return seen
+
+
 def test_the_posterior_of_a_saturated_trial_uses_exactly_the_fits_samples(monkeypatch):
-    import frictionfit.uncertainty as uq
     from frictionfit.errors import Status
-    from frictionfit.fit import FitResult
-    from frictionfit.simulation.trials import simulate_trials
+    from frictionfit.fit import FitResult, Trials
 
     ts = simulate_trials(MODEL, 2, seed=3)
     y = ts.y.copy()
     y[0] = np.minimum(y[0], np.nanpercentile(y[0], 60))  # a clipping amplifier
     res = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model=MODEL)
     assert Status(int(res.status[0])) is Status.SATURATED
-    seen = {}
-    real = uq.TrialData
-
-    def spy(t, y_, mask, *rest):
-        seen["mask"] = np.asarray(mask)
-        seen["direction"] = np.asarray(rest[2])
-        return real(t, y_, mask, *rest)
-
-    monkeypatch.setattr(uq, "TrialData", spy)
-    sample_posterior(res, y, ts.t, (ts.t_out, ts.t_back), method="laplace")
+    seen = _spy_trials(monkeypatch)
+    post = sample_posterior(res, y, ts.t, (ts.t_out, ts.t_back), method="laplace")
     used = FitResult.sample_mask(y)
     clipped = np.isfinite(y[0]) & ~used[0]
     assert clipped.sum() >= 20  # the run at the clip is left out ...
-    np.testing.assert_array_equal(seen["mask"], used)  # ... by the posterior as by the fit
-    np.testing.assert_array_equal(seen["direction"], res.direction)
+    np.testing.assert_array_equal(seen[0].mask, used)  # ... by the posterior as by the fit
+    np.testing.assert_array_equal(seen[0].direction, res.direction)
+    # The same trials given as Trials: the same samples, the same posterior.
+    again = sample_posterior(res, Trials.from_arrays(y, ts.t, (ts.t_out, ts.t_back)),
+                             method="laplace")
+    np.testing.assert_array_equal(seen[1].mask, used)
+    assert again.sd == post.sd
+
+
+def test_the_posterior_takes_the_fits_channel_signs(monkeypatch):
+    """Signs the fit carries are used as they are, never re-derived from the data."""
+    from dataclasses import replace
+
+    ts = simulate_trials(MODEL, 2, seed=3)
+    res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model=MODEL)
+    flipped = replace(res, direction=-res.direction)  # wrong, and so told apart
+    seen = _spy_trials(monkeypatch)
+    sample_posterior(flipped, ts.y, ts.t, (ts.t_out, ts.t_back), method="laplace")
+    np.testing.assert_array_equal(seen[0].direction, -res.direction)
+    sample_posterior(replace(res, direction=None), ts.y, ts.t, (ts.t_out, ts.t_back),
+                     method="laplace")  # a fit without signs: derived from its optimum
+    np.testing.assert_array_equal(seen[1].direction, res.direction)

@@ -165,11 +165,12 @@ def test_stacked_proposals_score_and_move_each_trial_as_its_own(rng):
 
 def test_sampling_coordinates_carry_the_same_posterior():
     """log p_x(x) = log p_u(u(x)) + log |du/dx| (the priors become flat boxes)."""
+    from frictionfit.fit import Trials
     from frictionfit.models import get_model
     from frictionfit.uncertainty._logpost import (
-        TrialData,
         from_sampling,
         logp_rows,
+        on_device,
         to_sampling,
     )
 
@@ -177,20 +178,20 @@ def test_sampling_coordinates_carry_the_same_posterior():
     t = np.arange(400) / 1000.0
     u = np.array([[0.1, 0.3, -0.2, 0.0, 0.4], [0.0, -1.0, 0.5, 0.3, -0.2]])
     y = np.zeros((2, t.size))
-    data = TrialData(t, y, np.ones_like(y, dtype=bool), np.full(2, 0.05), np.full(2, 0.25),
-                     np.ones(2), np.ones(2), np.zeros(2))
+    data = (on_device(Trials.from_arrays(y, t, (0.05, 0.25), direction=np.ones(2))),
+            np.ones(2), np.zeros(2))
     x = to_sampling(model, u)
     np.testing.assert_allclose(from_sampling(model, x), u, atol=1e-9)
     idx = np.arange(2)
-    lp_u = np.asarray(logp_rows(model)(u, idx, data.t, *data.arrays()))
-    lp_x = np.asarray(logp_rows(model, True)(x, idx, data.t, *data.arrays()))
+    lp_u = np.asarray(logp_rows(model)(u, idx, *data))
+    lp_x = np.asarray(logp_rows(model, True)(x, idx, *data))
     h = 1e-6
     dxdu = (to_sampling(model, u + h) - to_sampling(model, u - h)) / (2 * h)
     diff = lp_x - (lp_u - np.sum(np.log(dxdu), axis=1))
     np.testing.assert_allclose(diff, diff[0], atol=1e-6)  # equal up to one constant
     outside = x.copy()
     outside[0, 1] = 99.0  # log stiffness beyond its bound
-    assert np.asarray(logp_rows(model, True)(outside, idx, data.t, *data.arrays()))[0] == -np.inf
+    assert np.asarray(logp_rows(model, True)(outside, idx, *data))[0] == -np.inf
 
 
 def test_integrated_time_is_emcees_estimator(rng):

@@ -26,8 +26,8 @@ import numpy as np
 
 from frictionfit.bench._timing import alternate, machine_info, timed
 from frictionfit.errors import Status
-from frictionfit.fit import fit_trials, initial_guess
-from frictionfit.fit._problem import noise_scale
+from frictionfit.fit import Trials, fit_trials, initial_guess
+from frictionfit.fit._problem import Problem, noise_scale
 from frictionfit.models import FAMILY, ContactModel, get_model
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
@@ -161,10 +161,16 @@ def _peers(model: ContactModel, ts: TrialSet, u0: np.ndarray):
             lambda: _scipy_fits(model, ts, u0, j_resid, j_jac))
 
 
+def _trials(ts: TrialSet) -> Trials:
+    """The simulated trials as every fit takes them, with their true channel signs."""
+    return Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back), direction=ts.direction)
+
+
 def _ours(ts: TrialSet, model: str, **kw):
+    trials = _trials(ts)
+
     def call():
-        res = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model=model,
-                         direction=ts.direction, **kw)
+        res = fit_trials(trials, model=model, **kw)
         flagged = {n: np.array([n in f for f in res.flags]) for n in res.values[0]}
         return np.stack(res.u), res.status == Status.CONVERGED, flagged
 
@@ -290,22 +296,23 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
     runs the same code on float32 data (frictionfit's default stays float64); a
     trial counts as a success when it converged with finite parameters.
     """
+    import jax
+
     from frictionfit.fit import BatchedLevenbergMarquardt
     from frictionfit.fit._optx import solve_pooled
     from frictionfit.fit._problem import residual_fn
 
     ts = simulate_trials(DEFAULT_MODEL, n, seed=seed + 2)
     model = get_model(DEFAULT_MODEL)
-    times = (np.full(n, ts.t_out), np.full(n, ts.t_back))
-    u0 = initial_guess(model, ts.t, ts.y, *times, ts.direction)
+    trials = _trials(ts)
+    u0 = initial_guess(model, ts.t, ts.y, *trials.drive_input, ts.direction)
     free = tuple(range(model.n_params))
-    dt = ts.t[1] - ts.t[0]
     chunk = max(min(pool, n // 4), 4)  # two threads each get two full pools
+    problem = Problem.of(trials, u0)
 
     def call(dtype, threads):
-        data = (ts.y.astype(dtype), np.isfinite(ts.y), tuple(a.astype(dtype) for a in times),
-                ts.direction.astype(dtype), np.full(n, ts.t[0], dtype), np.full(n, dt, dtype),
-                u0.astype(dtype), noise_scale(ts.y, np.isfinite(ts.y)).astype(dtype))
+        data = jax.tree_util.tree_map(lambda a: a.astype(dtype) if a.dtype.kind == "f" else a,
+                                      problem)
 
         def solve():
             u, status, _ = solve_pooled(BatchedLevenbergMarquardt(), residual_fn(model, free),
@@ -352,10 +359,8 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
     from frictionfit.fit._optx import solve_pooled
     from frictionfit.fit._problem import residual_fn
 
-    n, free, mask = len(u0), tuple(range(model.n_params)), np.isfinite(ts.y)
-    data = (np.where(mask, ts.y, 0.0), mask, (np.full(n, ts.t_out), np.full(n, ts.t_back)),
-            ts.direction, np.full(n, ts.t[0]), np.full(n, ts.t[1] - ts.t[0]), u0,
-            noise_scale(ts.y, mask))
+    n, free = len(u0), tuple(range(model.n_params))
+    data = Problem.of(_trials(ts), u0)
 
     def pooled(solver):
         def call():

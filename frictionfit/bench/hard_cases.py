@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.errors import Status
-from frictionfit.fit import FitResult, fit_trials
+from frictionfit.fit import FitResult, Trials, fit_trials
 from frictionfit.fit.result import take_trials
 from frictionfit.models import get_model
 from frictionfit.simulation.hard_cases import HardCase, hard_cases, truth_unconstrained
@@ -62,19 +62,24 @@ def _groups(cases: Mapping[str, HardCase]) -> dict[tuple, list[str]]:
     """Cases that can share one ``fit_trials`` call: same model, length, dtype, start policy."""
     groups: dict[tuple, list[str]] = {}
     for name, c in cases.items():
-        key = (c.model, c.t.size, c.y.dtype.str, c.u0 is not None)
+        key = (c.trials.model, c.trials.t.size, c.trials.y.dtype.str, c.u0 is not None)
         groups.setdefault(key, []).append(name)
     return groups
 
 
-def _fit_group(group: list[HardCase], solver: str, max_steps: int) -> FitResult:
+def _trials(group: list[HardCase]) -> Trials:
+    """The trials of every case of ``group`` (one time grid), in order, as the fit takes them."""
+    sets = [c.trials for c in group]
+    t_out = np.concatenate([np.full(s.n_trials, s.t_out) for s in sets])
+    t_back = np.concatenate([np.full(s.n_trials, s.t_back) for s in sets])
+    return Trials.from_arrays(np.concatenate([s.y for s in sets]), sets[0].t, (t_out, t_back))
+
+
+def _fit_group(group: list[HardCase], trials: Trials, solver: str, max_steps: int) -> FitResult:
     first = group[0]
-    y = np.concatenate([c.y for c in group])
-    t_out = np.concatenate([np.full(c.n_trials, c.t_out) for c in group])
-    t_back = np.concatenate([np.full(c.n_trials, c.t_back) for c in group])
     u0 = None if first.u0 is None else np.concatenate([c.u0 for c in group])
-    return fit_trials(y, first.t, (t_out, t_back), model=first.model, solver=solver,
-                      max_steps=max_steps, chunk_size=CHUNK, u0=u0)
+    return fit_trials(trials, model=first.trials.model, solver=solver, max_steps=max_steps,
+                      chunk_size=CHUNK, u0=u0)
 
 
 @dataclass(frozen=True)
@@ -96,22 +101,22 @@ class CaseFit:
     post_error: str = ""
 
 
-def _laplace(fit: FitResult, case: HardCase):
+def _laplace(fit: FitResult, trials: Trials):
     """Laplace posterior of one case's fit: ``(median, sd, converged)``, or the error text."""
     try:
         from frictionfit.uncertainty import sample_posterior
     except ImportError as exc:
         return f"uncertainty unavailable: {exc}"
     try:
-        post = sample_posterior(fit, case.y, case.t, (case.t_out, case.t_back), method="laplace")
+        post = sample_posterior(fit, trials, method="laplace")
     except Exception as exc:  # noqa: BLE001 - an escaped exception is an outcome
         return f"{type(exc).__name__}: {exc}"
     median = [{k: float(q[k][2]) for k in q} for q in post.quantiles]  # QUANTILES: 2 = median
     return median, post.sd, np.asarray(post.converged)
 
 
-def _case_fit(fit: FitResult, case: HardCase, uncertainty: bool) -> CaseFit:
-    post = _laplace(fit, case) if uncertainty else None
+def _case_fit(fit: FitResult, trials: Trials, uncertainty: bool) -> CaseFit:
+    post = _laplace(fit, trials) if uncertainty else None
     extra = {"post_error": post} if isinstance(post, str) else {} if post is None else {
         "post_median": post[0], "post_sd": post[1], "post_converged": post[2]}
     return CaseFit(np.asarray(fit.status), fit.values, fit.stderr, fit.flags, list(fit.u),
@@ -120,10 +125,11 @@ def _case_fit(fit: FitResult, case: HardCase, uncertainty: bool) -> CaseFit:
 
 def _run_group(group: list[HardCase], solver: str, max_steps: int,
                uncertainty: bool) -> list[CaseFit]:
-    fit = _fit_group(group, solver, max_steps)
+    trials = _trials(group)
+    fit = _fit_group(group, trials, solver, max_steps)
     bounds = np.cumsum([0] + [c.n_trials for c in group])
-    return [_case_fit(take_trials(fit, slice(a, b)), case, uncertainty)
-            for case, a, b in zip(group, bounds[:-1], bounds[1:], strict=True)]
+    return [_case_fit(take_trials(fit, slice(a, b)), trials.take(slice(a, b)), uncertainty)
+            for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def fit_cases(cases: Mapping[str, HardCase], *, solver: str = "lm", max_steps: int = 200,
@@ -161,8 +167,9 @@ def _jacobian_fn(model_name: str):
 
 def gradients_finite(case: HardCase, result: CaseFit) -> bool:
     """True when the model's Jacobian is finite at the truth and at each finite fitted point."""
-    jac = _jacobian_fn(case.model)
-    t = jnp.asarray(case.t)
+    ts = case.trials
+    jac = _jacobian_fn(ts.model)
+    t = jnp.asarray(ts.t)
     points = [np.tile(truth_unconstrained(case), (case.n_trials, 1)), np.stack(result.u)]
     if case.u0 is not None:
         points.append(case.u0)
@@ -170,8 +177,8 @@ def gradients_finite(case: HardCase, result: CaseFit) -> bool:
     for u in points:
         finite = np.all(np.isfinite(u), axis=1)
         if finite.any():
-            j = jac(jnp.asarray(u[finite]), t, case.t_out, case.t_back,
-                    jnp.asarray(case.direction[finite]))
+            j = jac(jnp.asarray(u[finite]), t, ts.t_out, ts.t_back,
+                    jnp.asarray(ts.direction[finite]))
             ok &= bool(np.all(np.isfinite(np.asarray(j))))
     return ok
 

@@ -37,7 +37,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from frictionfit.bench._timing import alternate, machine_info, timed
-from frictionfit.fit import fit_trials
+from frictionfit.fit import Trials, fit_trials
 from frictionfit.fit.result import concat_results, take_trials
 from frictionfit.models import PARAMS, get_model
 from frictionfit.simulation.trials import TRUTH_RANGES, simulate_trials
@@ -53,8 +53,14 @@ def _fitted(model: str, n: int, seed: int, priors=None):
     ts = simulate_trials(model, n, seed=seed)
     names = get_model(model).param_names
     u0 = np.stack([PARAMS[p].to_unconstrained(ts.truth[p]) for p in names], axis=-1)
-    fit = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model=model, u0=u0, priors=priors)
+    fit = fit_trials(_trials(ts), model=model, u0=u0, priors=priors)
     return ts, fit
+
+
+def _trials(ts, fit=None) -> Trials:
+    """The trials of ``ts`` as the fit takes them, or with ``fit``'s channel signs."""
+    return Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back),
+                              direction=None if fit is None else fit.direction)
 
 
 def _simulator_ramp_prior() -> tuple[float, float]:
@@ -66,17 +72,15 @@ def _simulator_ramp_prior() -> tuple[float, float]:
 
 
 def _posterior(ts, fit, method: str, seed: int, **kw):
-    return sample_posterior(fit, ts.y, ts.t, (ts.t_out, ts.t_back), method=method, seed=seed,
-                            **kw)
+    return sample_posterior(fit, _trials(ts, fit), method=method, seed=seed, **kw)
 
 
 def _one_by_one(ts, fit, seed: int, **kw) -> SimpleNamespace:
     """emcee one trial at a time (no lockstep batching across trials), for comparison."""
-    posts = []
+    posts, trials = [], _trials(ts, fit)
     for i in range(fit.n_trials):
-        posts.append(sample_posterior(take_trials(fit, [i]), ts.y[i:i + 1], ts.t,
-                                      (ts.t_out, ts.t_back), method="emcee", seed=seed + i,
-                                      **kw))
+        posts.append(sample_posterior(take_trials(fit, [i]), trials.take([i]), method="emcee",
+                                      seed=seed + i, **kw))
     return SimpleNamespace(**{k: [getattr(p, k)[0] for p in posts]
                               for k in ("quantiles", "sd", "converged", "method", "tau",
                                         "chains")})
@@ -343,8 +347,9 @@ def downstream(*, quick: bool = False, seed: int = 0, n_classes: int | None = No
     rms = np.sqrt(np.mean((clean - clean.mean(axis=1, keepdims=True)) ** 2, axis=1))
     snr = rng.uniform(*snr_db, len(rows))
     y = clean + (rms / 10 ** (snr / 20))[:, None] * rng.standard_normal(clean.shape)
-    fit_s, fit = timed(lambda: fit_trials(y, t, (t_out, t_back), model="relaxation"))
-    post_s, post = timed(lambda: sample_posterior(fit, y, t, (t_out, t_back), method="laplace"))
+    trials = Trials.from_arrays(y, t, (t_out, t_back))
+    fit_s, fit = timed(lambda: fit_trials(trials, model="relaxation"))
+    post_s, post = timed(lambda: sample_posterior(fit, trials, method="laplace"))
     q16, q50, q84 = (list(QUANTILES).index(k) for k in ("p16", "median", "p84"))
     n_meas_total = len(meas_label)
     med = np.full((len(rows), len(_LAW)), np.nan)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -127,34 +127,32 @@ def _fit_motions(files: list[Path], strict: bool, options: dict, posterior: _Pos
     if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
-    n_trials = sum(len(b.ids) for b in batches.values())
+    n_trials = sum(b.n_trials for b in batches)
     typer.echo(f"fitting {n_trials} trials ({used} of {len(files)} recordings), "
                f"model={options['model']} ...")
     frames, wall, first = [], 0.0, None
-    for batch in batches.values():  # one batch per sample interval: each on its own time grid
-        y, drive_input = np.asarray(batch.ys), (np.asarray(batch.t_outs),
-                                                np.asarray(batch.t_backs))
+    for trials in batches:  # one batch per sample interval: each on its own time grid
+        groups = np.asarray(trials.groups)
         try:
             if posterior.scheduler:
                 from frictionfit.distributed import fit_distributed
 
-                result = fit_distributed(y, batch.t, drive_input, scheduler=posterior.scheduler,
-                                         groups=np.asarray(batch.groups), **options)
+                result = fit_distributed(trials, scheduler=posterior.scheduler, groups=groups,
+                                         **options)
             else:
-                result = fit_trials(y, batch.t, drive_input, groups=np.asarray(batch.groups),
-                                    **options)
+                result = fit_trials(trials, groups=groups, **options)
         except (FrictionfitError, ValueError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
-        frame = result.to_frame(batch.ids)
+        frame = result.to_frame(trials.ids)
         if posterior.method != "none":
-            frame = frame.merge(_posterior(result, y, batch.t, drive_input, posterior)
-                                .to_frame(batch.ids), on="trial")
-        frame.insert(1, "problems", [problems.get(i.split("/")[0], "") for i in batch.ids])
+            frame = frame.merge(_posterior(result, trials, posterior).to_frame(trials.ids),
+                                on="trial")
+        frame.insert(1, "problems", [problems.get(i.split("/")[0], "") for i in trials.ids])
         frames.append(frame)
         wall += result.wall_s
         first = first or result
-        _plots(result, [(batch.t, y_i) for y_i in batch.ys], batch.ids, output.plots)
+        _plots(result, [(trials.t, y_i) for y_i in trials.y], list(trials.ids), output.plots)
     _write(pd.concat(frames, ignore_index=True), output.table, "trials", wall)
     if output.report:
         typer.echo(fit_report(first, 0))
@@ -252,55 +250,36 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         typer.echo(fit_report(result, 0))
 
 
-@dataclass
-class _Batch:
-    """Trials of one sample interval: the time grid of its first motion, one row per trial."""
-
-    t: np.ndarray
-    ys: list = field(default_factory=list)
-    t_outs: list = field(default_factory=list)
-    t_backs: list = field(default_factory=list)
-    ids: list = field(default_factory=list)
-    groups: list = field(default_factory=list)
-
-
-def _trials(files: list[Path], strict: bool) -> tuple[dict[float, _Batch], dict[str, str], int]:
-    """Motions x channels of ``files``, batched by sample interval; each recording's problems
-    (named on stderr); how many recordings were used. A recording that cannot be read or
-    segmented, or whose problems make its numbers wrong, is skipped by name (``strict``:
-    the command stops)."""
+def _trials(files: list[Path], strict: bool):
+    """Motions x channels of ``files`` as :class:`~frictionfit.fit.Trials`, one batch per
+    sample interval; each recording's problems (named on stderr); how many recordings were
+    used. A recording that cannot be read or segmented, or whose problems make its numbers
+    wrong, is skipped by name (``strict``: the command stops)."""
+    from frictionfit.fit import Trials
     from frictionfit.segmentation import segment
 
-    batches: dict[float, _Batch] = {}
+    by_interval: dict[float, list] = {}
     problems: dict[str, str] = {}
     used = 0
     for rec, motions in _prepared(files, strict, segment):
         used += 1
         problems[rec.name] = "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
         for m in motions:
-            batch = batches.setdefault(round(float(m.t[1] - m.t[0]), 12), _Batch(m.t))
-            n = min(batch.t.size, m.t.size)
-            for j, ch in enumerate(m.channels):
-                y = np.full(batch.t.size, np.nan)
-                y[:n] = m.samples[:n, j]
-                batch.ys.append(y)
-                batch.t_outs.append(m.t_out)
-                batch.t_backs.append(m.t_back)
-                batch.ids.append(f"{m.recording}/motion{m.index}/{ch.name}")
-                batch.groups.append(f"{m.recording}/motion{m.index}")
-    return batches, problems, used
+            by_interval.setdefault(round(float(m.t[1] - m.t[0]), 12), []).append(m)
+    return [Trials.from_motions(ms) for ms in by_interval.values()], problems, used
 
 
-def _posterior(result, y, t, drive_input, posterior: _Posterior):
-    """``sample_posterior`` locally, or spread over the Dask cluster at its scheduler."""
+def _posterior(result, trials, posterior: _Posterior):
+    """``sample_posterior`` of the fitted ``trials`` locally, or spread over the Dask cluster
+    at its scheduler."""
     if posterior.scheduler:
         from frictionfit.distributed import posterior_distributed
 
-        return posterior_distributed(result, y, t, drive_input, scheduler=posterior.scheduler,
+        return posterior_distributed(result, trials, scheduler=posterior.scheduler,
                                      method=posterior.method)
     from frictionfit.uncertainty import sample_posterior
 
-    return sample_posterior(result, y, t, drive_input, method=posterior.method,
+    return sample_posterior(result, trials, method=posterior.method,
                             chains_path=posterior.chains)
 
 

@@ -15,6 +15,7 @@ from frictionfit.fit.plot import plot_fit as plot_fit
 from frictionfit.fit.result import FitResult as FitResult
 from frictionfit.fit.result import fit_report as fit_report
 from frictionfit.fit.solver import BatchedLevenbergMarquardt as BatchedLevenbergMarquardt
+from frictionfit.fit.trials import Trials as Trials
 
-__all__ = ["SOLVERS", "BatchedLevenbergMarquardt", "FitResult", "fit_report", "fit_trials",
-           "initial_guess", "plot_fit"]
+__all__ = ["SOLVERS", "BatchedLevenbergMarquardt", "FitResult", "Trials", "fit_report",
+           "fit_trials", "initial_guess", "plot_fit"]

@@ -14,19 +14,14 @@ from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
-from frictionfit.fit._guess import (
-    direction_of,
-    initial_guess,
-    multi_starts,
-    saturated_samples,
-    trial_keys,
-)
+from frictionfit.fit._guess import initial_guess, multi_starts, saturated_samples, trial_keys
 from frictionfit.fit._numerics import pad_rows
 from frictionfit.fit._optx import solve_pooled
-from frictionfit.fit._problem import jacobian_fn, noise_scale, residual_fn
+from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
+from frictionfit.fit.trials import Trials, as_trials
 from frictionfit.models import FAMILY, PARAMS, get_model
 
 __all__ = ["SOLVERS", "fit_trials"]
@@ -64,24 +59,19 @@ class SolverSettings:
 
 @dataclass(frozen=True, eq=False)
 class Batch:
-    """The arrays every member's fit shares, built once per batch.
+    """What every member's fit shares, built once per batch: the trials, their sample
+    interval ``dt`` (s), which ones have a clipped run, their keys (:func:`trial_keys`)
+    and noise sd (N)."""
 
-    ``data`` is the per-trial problem tuple of :mod:`frictionfit.fit._problem`
-    without ``base`` and ``noise``; ``guess_times`` the command times (s) the
-    starting guesses use; ``dt`` the sample interval (s); ``noise`` the noise sd (N).
-    """
-
-    t: np.ndarray
-    y: np.ndarray
-    mask: np.ndarray
-    data: tuple
-    direction: np.ndarray
-    drive_input: object
-    guess_times: tuple
+    trials: Trials
     dt: float
     saturated: np.ndarray
     keys: np.ndarray
     noise: np.ndarray
+
+    def problem(self, base: np.ndarray) -> Problem:
+        """The least-squares problem of every trial from unconstrained ``base``."""
+        return Problem.of(self.trials, base, self.noise)
 
 
 @dataclass(frozen=True)
@@ -147,7 +137,7 @@ def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: Solver
     ``extra_starts`` (k, n_trials, n_params): further starting points (e.g. the
     smaller family member's optimum), tried besides the data-driven ones.
     """
-    names, t_mask = model.param_names, batch.mask
+    names, t_mask = model.param_names, batch.trials.mask
     free = tuple(j for j, n in enumerate(names) if n not in how.fixed)
     base = u_start.copy()
     for name, value in how.fixed.items():
@@ -155,7 +145,7 @@ def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: Solver
             base[:, names.index(name)] = PARAMS[name].to_unconstrained(value)
     starts = _starts(model, base, free, batch, how, extra_starts)
     u, code, nonfinite, steps, resid, jtj = _solve(
-        model, free, starts, (*batch.data, base, batch.noise), solve)
+        model, free, starts, batch.problem(base), solve)
     stats = statistics(model, u, resid, jtj, t_mask, free,
                        [n for n in how.fixed if n in names and n not in how.tied])
     if how.drive == "events":
@@ -193,7 +183,7 @@ def _tie(fit, model, tie, groups):
 
 
 def fit_trials(
-    y, t, drive_input, *, model: str = "auto", direction=None, drive: str = "events",
+    y, t=None, drive_input=None, *, model: str = "auto", direction=None, drive: str = "events",
     solver: str | optx.AbstractLeastSquaresSolver = "lm", max_steps: int = 100,
     steps_per_round: int = 4, chunk_size: int = 32, rtol: float = 1e-8, atol: float = 1e-8,
     ftol: float = 1e-6, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
@@ -204,8 +194,10 @@ def fit_trials(
 
     Parameters
     ----------
-    y : array (n_trials, n_samples)
-        Force of one channel per trial, N; NaN marks missing samples (masked out).
+    y : array (n_trials, n_samples), or Trials
+        Force of one channel per trial, N; NaN marks missing samples (masked out). Or a
+        :class:`~frictionfit.fit.Trials`, which brings ``t``, ``drive_input``, ``drive``
+        and ``direction`` (then not given).
     t : array (n_samples,)
         Uniform sample times, s (shared by the batch).
     drive_input : tuple or array
@@ -263,24 +255,15 @@ def fit_trials(
     ['CONVERGED', 'CONVERGED']
     """
     start = time.perf_counter()
-    y, t = _samples(y, t)
+    trials = as_trials(y, t, drive_input, drive=drive, direction=direction)
     solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round,
                              chunk_size, threads)
-    how = _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
-    batch = _prepare(y, t, _sample_interval(t), drive_input, drive, direction)
+    how = _member_settings(trials.drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
+    batch = _prepare(trials)
     members = _members(model, how)
     fits, inits = _fit_family(members, batch, solve, how, None if model == "auto" else u0,
                               tie, groups)
     return _assemble(fits, inits, batch, how, solve.name, model == "auto", start)
-
-
-def _samples(y, t) -> tuple[np.ndarray, np.ndarray]:
-    """``y (n_trials, n_samples)`` and ``t (n_samples,)`` as float64, checked to agree."""
-    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    t = np.asarray(t, dtype=np.float64)
-    if y.shape[1] != t.size:
-        raise FitError(f"y has {y.shape[1]} samples per trial but t has {t.size}")
-    return y, t
 
 
 def _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
@@ -311,14 +294,6 @@ _NAMES = {BatchedLevenbergMarquardt: "lm", optx.LevenbergMarquardt: "optx-lm",
           optx.Dogleg: "dogleg", optx.GaussNewton: "gauss-newton"}
 
 
-def _sample_interval(t: np.ndarray) -> float:
-    """The sample interval of uniform times ``t`` (s); 1 for a single sample."""
-    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-    if t.size > 2 and not np.allclose(np.diff(t), dt, rtol=1e-6, atol=1e-12):
-        raise FitError("t must be uniformly sampled (re-grid missing samples as NaN)")
-    return dt
-
-
 def _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie,
                      groups) -> MemberSettings:
     """The settings of every member's fit; unknown fixed or tied names are refused."""
@@ -333,28 +308,12 @@ def _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie,
                           n_starts=max(int(n_starts), 1), seed=seed, fixed=fix)
 
 
-def _prepare(y, t, dt, drive_input, drive, direction) -> Batch:
-    """The batch's arrays: masked force, drive per trial, direction, noise scale."""
-    n_trials = y.shape[0]
+def _prepare(trials: Trials) -> Batch:
+    """What every member's fit shares: sample interval, clipped trials, keys, noise scale."""
     # Samples held at a clipping extreme are censored, not measured: left out (SATURATED).
-    clipped = saturated_samples(y)
-    mask = FitResult.sample_mask(y)
-    y_clean = np.where(mask, y, 0.0)
-    if drive == "events":
-        t_out, t_back = drive_input
-        drive_input = (np.broadcast_to(np.asarray(t_out, np.float64), (n_trials,)).copy(),
-                       np.broadcast_to(np.asarray(t_back, np.float64), (n_trials,)).copy())
-        guess_times = drive_input
-    else:
-        drive_input = np.asarray(drive_input, dtype=np.float64).reshape(n_trials, t.size)
-        guess_times = (np.full(n_trials, t[0]), np.full(n_trials, t[-1] + 1.0))
-    if direction is None:
-        direction = direction_of(t, y, *guess_times)
-    direction = np.asarray(direction, dtype=np.float64)
-    data = (y_clean, mask, drive_input, direction, np.full(n_trials, t[0]), np.full(n_trials, dt))
-    return Batch(t=t, y=y, mask=mask, data=data, direction=direction, drive_input=drive_input,
-                 guess_times=guess_times, dt=dt, saturated=clipped.any(axis=1),
-                 keys=trial_keys(y), noise=noise_scale(y_clean, mask))
+    return Batch(trials=trials, dt=trials.dt,
+                 saturated=saturated_samples(trials.y).any(axis=1), keys=trial_keys(trials.y),
+                 noise=Problem.noise_of(trials))
 
 
 def _members(model: str, how: MemberSettings) -> list:
@@ -373,7 +332,8 @@ def _fit_family(members, batch: Batch, solve: SolverSettings, how: MemberSetting
     fits, inits, previous = {}, {}, None
     for member in members:
         start_u = np.array(u0 if u0 is not None else initial_guess(
-            member, batch.t, batch.y, *batch.guess_times, batch.direction), dtype=np.float64)
+            member, batch.trials.t, batch.trials.y, *batch.trials.guess_times,
+            batch.trials.direction), dtype=np.float64)
         inits[member.name] = [{k: float(v) for k, v in row.items()}
                               for row in _rows_of(member.physical(start_u))]
         fit = _fit_member(member, batch, start_u, how, solve,
@@ -393,7 +353,7 @@ def _refit_tied(fit, member, batch: Batch, how: MemberSettings, solve: SolverSet
     means, errs = _tie(fit, member, tie, groups)
     refit = _fit_member(member, batch, fit["u"],
                         replace(how, fixed={**how.fixed, **means}, tied=tuple(means)), solve)
-    for i in range(batch.y.shape[0]):
+    for i in range(batch.trials.n_trials):
         for name in means:
             refit["stderr"][i][name] = float(errs[name][i])
         # Holding a tied parameter at its group mean hides the trade-offs it had:
@@ -422,7 +382,7 @@ def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto:
     rows = [fits[name] for name in chosen]
     with np.errstate(over="ignore", invalid="ignore"):
         total_ss = np.array([np.sum((yi[m] - yi[m].mean()) ** 2) if m.any() else np.nan
-                             for yi, m in zip(batch.y, batch.mask, strict=True)])
+                             for yi, m in zip(batch.trials.y, batch.trials.mask, strict=True)])
         chi2 = np.array([r["chi2"][i] for i, r in enumerate(rows)])
         # A constant (dead) channel has no variance to explain: R^2 is undefined (NaN).
         r2 = 1.0 - np.divide(chi2, total_ss, out=np.full_like(chi2, np.nan),
@@ -436,8 +396,8 @@ def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto:
         aic=pick["aic"], bic=pick["bic"], r2=r2, cond=pick["cond"], n_steps=pick["steps"],
         init=[inits[name][i] for i, name in enumerate(chosen)], **per_trial,
         bic_table=bic if auto else None, wall_s=time.perf_counter() - start,
-        solver=solver, n_starts=how.n_starts, direction=batch.direction,
-        drive_input=batch.drive_input, drive=how.drive, stroke_mm=how.stroke_mm,
+        solver=solver, n_starts=how.n_starts, direction=batch.trials.direction,
+        drive_input=batch.trials.drive_input, drive=how.drive, stroke_mm=how.stroke_mm,
         priors=dict(how.priors) if how.priors is not None else None,
     )
 

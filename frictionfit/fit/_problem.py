@@ -1,9 +1,8 @@
 """The least-squares problem of one trial: masked residual and its Jacobian.
 
-Per-trial data is a tuple ``(y, mask, drive_input, direction, t0, dt, base, noise)``:
-force samples (N, NaN replaced by 0), the finite-sample mask, the drive
-(``(t_out, t_back)`` in s, or a displacement in mm per sample), the channel's
-sign, the first sample time and the sample interval (s), ``base``, the full
+Per-trial data is a :class:`Problem`: the trial's arrays of a
+:class:`~frictionfit.fit.trials.Trials` (with its own first sample time and
+interval, so the solver's pools can take any trial's row), ``base``, the full
 unconstrained parameter vector whose entries outside ``free`` stay fixed, and
 ``noise``, the trial's noise sd (N) estimated before the fit (:func:`noise_scale`).
 
@@ -18,13 +17,48 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit.trials import Trials
 from frictionfit.models import ContactModel
 
-__all__ = ["jacobian_fn", "noise_scale", "residual_fn"]
+__all__ = ["Problem", "jacobian_fn", "noise_scale", "residual_fn"]
+
+
+class Problem(eqx.Module):
+    """The least-squares data of each trial, one row per trial (the solver's pools take rows).
+
+    ``y`` force (N, 0 where not used), ``mask`` the used samples, ``drive_input`` as in
+    :class:`~frictionfit.fit.trials.Trials`, ``direction`` +1/-1, ``t0`` and ``dt`` the
+    first sample time and the interval (s), ``base`` unconstrained parameters (the held
+    ones' values), ``noise`` the noise sd (N).
+    """
+
+    y: np.ndarray
+    mask: np.ndarray
+    drive_input: tuple | np.ndarray
+    direction: np.ndarray
+    t0: np.ndarray
+    dt: np.ndarray
+    base: np.ndarray
+    noise: np.ndarray
+
+    @classmethod
+    def of(cls, trials: Trials, base: np.ndarray, noise: np.ndarray | None = None) -> Problem:
+        """The problem of fitting ``trials`` from ``base``; ``noise`` (N) by default
+        :meth:`noise_of` them."""
+        n = trials.n_trials
+        return cls(trials.filled, trials.mask, trials.drive_input, trials.direction,
+                   np.full(n, trials.t[0]), np.full(n, trials.dt), base,
+                   cls.noise_of(trials) if noise is None else noise)
+
+    @staticmethod
+    def noise_of(trials: Trials) -> np.ndarray:
+        """Per-trial noise sd (N) of the samples ``trials`` use (:func:`noise_scale`)."""
+        return noise_scale(trials.filled, trials.mask)
 
 
 def noise_scale(y: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -53,13 +87,12 @@ def residual_fn(model: ContactModel, free: tuple[int, ...]):
     masked), then the prior rows."""
     free_idx = jnp.asarray(free)
 
-    def residual(u_free, data):
-        y, mask, drive_input, direction, t0, dt, base, noise = data
-        u = base.at[free_idx].set(u_free)
-        t = t0 + dt * jnp.arange(y.shape[-1], dtype=y.dtype)
-        pred = model.predict(u, t, drive_input, direction)
-        return jnp.concatenate([jnp.where(mask, pred - y, 0.0),
-                                noise * model.prior_residuals(u)])
+    def residual(u_free, data: Problem):
+        u = data.base.at[free_idx].set(u_free)
+        t = data.t0 + data.dt * jnp.arange(data.y.shape[-1], dtype=data.y.dtype)
+        pred = model.predict(u, t, data.drive_input, data.direction)
+        return jnp.concatenate([jnp.where(data.mask, pred - data.y, 0.0),
+                                data.noise * model.prior_residuals(u)])
 
     return residual
 
@@ -76,6 +109,6 @@ def jacobian_fn(model: ContactModel, free: tuple[int, ...]):
             return r, r
 
         jac, r = jax.jacfwd(both, has_aux=True)(u_free)
-        return r[: data[0].shape[-1]], jac.T @ jac
+        return r[: data.y.shape[-1]], jac.T @ jac
 
     return jax.jit(jax.vmap(one))

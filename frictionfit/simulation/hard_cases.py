@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.models import PARAMS, get_model
+from frictionfit.simulation.trials import TrialSet
 
 __all__ = ["BASE_TRUTH", "CASES", "NOISE_SD", "HardCase", "hard_cases", "truth_unconstrained"]
 
@@ -45,25 +46,20 @@ _T_OUT, _T_BACK = 0.05, 0.65
 
 @dataclass(frozen=True)
 class HardCase:
-    """One hard case: trials, truth, the model to fit and what counts as right.
+    """One hard case: trials, the right answer and what counts as right.
 
     Attributes
     ----------
     name, description : str
         Short identifier and one sentence on what makes it hard.
-    model : str
-        Family member to fit (also the generating one unless the data have no model).
-    t : ndarray (n_samples,)
-        Sample times, s.
-    y : ndarray (n_trials, n_samples)
-        Force, N (float32 for the float32 case; NaN where samples are missing).
-    t_out, t_back : float
-        ``move`` command times, s.
-    direction : ndarray (n_trials,)
-        +1/-1 per trial, as generated.
+    trials : TrialSet
+        The data and what generated it: ``trials.model`` is the family member to fit
+        (also the generating one unless the data have no model), ``trials.y`` the force
+        (N; float32 for the float32 case, NaN where samples are missing), ``trials.truth``
+        the generating parameters, ``trials.noise_sd`` :data:`NOISE_SD`.
     truth : dict of str -> float
-        True physical value of each parameter of ``model`` (0 where there is no
-        contact force at all).
+        The right answer: the true physical value of each parameter of the model (0
+        where there is no contact force at all).
     check : dict of str -> (rtol, atol)
         Parameters that must satisfy ``|est - truth| <= rtol |truth| + atol`` unless
         flagged; a converged, unflagged value outside it is a confident wrong answer.
@@ -77,12 +73,7 @@ class HardCase:
 
     name: str
     description: str
-    model: str
-    t: np.ndarray
-    y: np.ndarray
-    t_out: float
-    t_back: float
-    direction: np.ndarray
+    trials: TrialSet
     truth: dict[str, float]
     check: dict[str, tuple[float, float]]
     accept: frozenset[str] = frozenset({"correct", "flagged"})
@@ -91,7 +82,7 @@ class HardCase:
 
     @property
     def n_trials(self) -> int:
-        return int(self.y.shape[0])
+        return self.trials.n_trials
 
 
 @lru_cache(maxsize=8)
@@ -124,10 +115,11 @@ def _case(name, description, model, n, seed, check, *, t_back=_T_BACK, y_map=Non
     t, y, direction, truth = _simulate(model, n, seed, t_back=t_back, **changes)
     if y_map is not None:
         y = y_map(y, np.random.default_rng(seed + 2), truth, direction)
+    trials = TrialSet(model, t, y, _T_OUT, t_back, direction,
+                      {k: np.full(n, v) for k, v in truth.items()}, np.full(n, NOISE_SD))
     if no_contact is not None:
         truth = {**truth, "offset": no_contact, "f_kin": 0.0, "f_static_excess": 0.0}
-    return HardCase(name, description, model, t, y, _T_OUT, t_back, direction, truth, check,
-                    frozenset(accept))
+    return HardCase(name, description, trials, truth, check, frozenset(accept))
 
 
 def _missing(y, rng, truth, direction):
@@ -162,7 +154,7 @@ def _repeat(y, rng, truth, direction):
 
 
 def _extreme_u0(case: HardCase) -> HardCase:
-    params = get_model(case.model).params
+    params = get_model(case.trials.model).params
     sign = np.where(np.arange(case.n_trials) % 2 == 0, 1.0, -1.0)[:, None]
     u0 = np.where([p.transform == "identity" for p in params], 0.0, 25.0 * sign)
     return replace(case, name="extreme_start", u0=u0,
@@ -252,6 +244,6 @@ def hard_cases(names: list[str] | None = None, seed: int = 0) -> dict[str, HardC
 
 def truth_unconstrained(case: HardCase) -> np.ndarray:
     """The true parameters of ``case`` in the model's unconstrained coordinates."""
-    params = get_model(case.model).params
+    params = get_model(case.trials.model).params
     return np.array([p.to_unconstrained(np.clip(case.truth[p.name], p.lower, p.upper))
                      for p in params])

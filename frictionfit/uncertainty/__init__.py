@@ -4,7 +4,6 @@
 :class:`Posterior` per trial of a :class:`~frictionfit.fit.FitResult`.
 """
 
-from frictionfit.uncertainty._logpost import TrialData as TrialData
 from frictionfit.uncertainty.engine import AUTO_MAX_COND as AUTO_MAX_COND
 from frictionfit.uncertainty.engine import AUTO_MAX_PROFILE_DEV as AUTO_MAX_PROFILE_DEV
 from frictionfit.uncertainty.engine import METHODS as METHODS

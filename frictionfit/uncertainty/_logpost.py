@@ -35,11 +35,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit import Trials
 from frictionfit.fit._noise import ar1_log_likelihood
 from frictionfit.models import ContactModel
 
-__all__ = ["OFFSET_PRIOR_SD_N", "TrialData", "from_sampling", "log_prior", "logp_rows",
-           "sampling_bounds", "to_sampling"]
+__all__ = ["OFFSET_PRIOR_SD_N", "ROW_AXES", "from_sampling", "log_prior", "logp_rows",
+           "on_device", "residuals", "sampling_bounds", "to_sampling"]
 
 #: Prior sd of a channel offset, N (sensor offsets are at most tens of N).
 OFFSET_PRIOR_SD_N = 100.0
@@ -92,39 +93,24 @@ def log_prior_sampling(model: ContactModel, x):
     return jnp.where(inside, gauss, -jnp.inf)
 
 
-class TrialData:
-    """The data of a batch of trials, stacked as arrays for :func:`logp_rows`.
-
-    Attributes
-    ----------
-    t : ndarray (n_samples,)
-        Sample times, s.
-    y, mask : ndarray (n_trials, n_samples)
-        Force (N, NaN replaced by 0) and the finite-sample mask.
-    t_out, t_back, direction, sigma, rho : ndarray (n_trials,)
-        Command times (s), channel sign, noise sd (N) and AR(1) coefficient.
-    """
-
-    def __init__(self, t, y, mask, t_out, t_back, direction, sigma, rho):
-        self.t = jnp.asarray(t)
-        self.y, self.mask = jnp.asarray(y), jnp.asarray(mask)
-        self.t_out, self.t_back = jnp.asarray(t_out), jnp.asarray(t_back)
-        self.direction = jnp.asarray(direction)
-        self.sigma, self.rho = jnp.asarray(sigma), jnp.asarray(rho)
-
-    def arrays(self) -> tuple:
-        return (self.y, self.mask, self.t_out, self.t_back, self.direction, self.sigma,
-                self.rho)
+#: ``jax.vmap`` axes of :class:`~frictionfit.fit.Trials` (``drive="events"``), one trial a row.
+ROW_AXES = Trials(t=None, y=0, drive_input=0, direction=0, mask=0)
 
 
-def _one_logp(model: ContactModel, u, t, y, mask, t_out, t_back, direction, sigma, rho,
+def on_device(trials: Trials) -> Trials:
+    """``trials`` (``drive="events"``) as JAX arrays, without ids: moved to the device once,
+    not at every call of a jitted function."""
+    return jax.tree_util.tree_map(jnp.asarray, trials.arrays_only())
+
+
+def _one_logp(model: ContactModel, u, t, y, mask, drive_input, direction, sigma, rho,
               sampling=False):
     if sampling:  # u holds sampling coordinates
         prior = log_prior_sampling(model, u)
         u = from_sampling(model, u, jnp)
     else:
         prior = log_prior(model, u)
-    pred = model.predict(u, t, (t_out, t_back), direction)
+    pred = model.predict(u, t, drive_input, direction)
     resid = jnp.where(mask, pred - y, 0.0)
     lp = ar1_log_likelihood(resid, mask, sigma, rho) + prior
     return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
@@ -132,17 +118,21 @@ def _one_logp(model: ContactModel, u, t, y, mask, t_out, t_back, direction, sigm
 
 @lru_cache(maxsize=32)
 def logp_rows(model: ContactModel, sampling: bool = False):
-    """Jitted ``f(U (R, p), idx (R,), t, *TrialData.arrays()) -> log-posterior (R,)``.
+    """Jitted ``f(U (R, p), idx (R,), trials, sigma, rho) -> log-posterior (R,)``.
 
-    Row ``r`` is walker ``U[r]`` of trial ``idx[r]``: walkers of many trials go
-    through one vmapped call. ``sampling=True``: ``U`` in sampling coordinates
-    (:func:`to_sampling`), the density of the same posterior there.
+    Row ``r`` is walker ``U[r]`` of trial ``idx[r]`` of ``trials`` (:func:`on_device`),
+    whose noise sd (N) and AR(1) coefficient are ``sigma`` and ``rho`` (per trial): walkers
+    of many trials go through one vmapped call. ``sampling=True``: ``U`` in sampling
+    coordinates (:func:`to_sampling`), the density of the same posterior there.
     """
 
-    def rows(U, idx, t, y, mask, t_out, t_back, direction, sigma, rho):
+    def rows(U, idx, trials: Trials, sigma, rho):
+        t_out, t_back = trials.drive_input
+
         def one(u, i):
-            return _one_logp(model, u, t, y[i], mask[i], t_out[i], t_back[i], direction[i],
-                             sigma[i], rho[i], sampling)
+            return _one_logp(model, u, trials.t, trials.y[i], trials.mask[i],
+                             (t_out[i], t_back[i]), trials.direction[i], sigma[i], rho[i],
+                             sampling)
 
         return jax.vmap(one)(U, idx)
 
@@ -151,9 +141,10 @@ def logp_rows(model: ContactModel, sampling: bool = False):
 
 @lru_cache(maxsize=32)
 def residuals(model: ContactModel):
-    """Jitted, vmapped residuals ``pred - y`` (N, 0 where masked) of ``u (T, p)`` per trial."""
+    """Jitted ``f(u (T, p), trials) -> pred - y`` (N, 0 where not used), trial by trial."""
 
-    def one(u, t, y, mask, t_out, t_back, direction):
-        return jnp.where(mask, model.predict(u, t, (t_out, t_back), direction) - y, 0.0)
+    def one(u, trial: Trials):
+        pred = model.predict(u, trial.t, trial.drive_input, trial.direction)
+        return jnp.where(trial.mask, pred - trial.y, 0.0)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, None, 0, 0, 0, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(0, ROW_AXES)))

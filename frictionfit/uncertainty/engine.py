@@ -29,22 +29,23 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+import jax.numpy as jnp
 import numpy as np
 from emcee.backends import HDFBackend
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
-from frictionfit.fit import FitResult
+from frictionfit.fit import FitResult, Trials
 from frictionfit.fit._noise import noise_estimate
 from frictionfit.fit._numerics import fd_slope, pad_rows
 from frictionfit.models import ContactModel, get_model
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import (
-    TrialData,
     from_sampling,
     logp_rows,
+    on_device,
     residuals,
     to_sampling,
 )
@@ -79,35 +80,26 @@ class SamplerSettings:
 
 @dataclass(frozen=True, eq=False)
 class TrialGroup:
-    """The trials of a batch fitted with one model: their rows and data.
-
-    ``y`` force (N, 0 where ``mask`` is False); ``t`` sample times, ``t_out``,
-    ``t_back`` command times (s).
-    """
+    """The trials of a batch fitted with one model: their rows in the batch and the trials."""
 
     model: ContactModel
     rows: np.ndarray
-    t: np.ndarray
-    y: np.ndarray
-    mask: np.ndarray
-    t_out: np.ndarray
-    t_back: np.ndarray
+    trials: Trials
 
 
 @dataclass(frozen=True, eq=False)
 class _Noise:
-    """Per trial of a group: channel sign, noise sd (N) and AR(1) coefficient."""
+    """Per trial of a group: noise sd (N) and AR(1) coefficient."""
 
-    direction: np.ndarray
     sigma: np.ndarray
     rho: np.ndarray
 
 
-def _directions(model, t, y, mask, t_out, t_back, u) -> np.ndarray:
+def _directions(model, trials: Trials, u) -> np.ndarray:
     """The channel sign (+1/-1) under which ``u`` fits each trial best."""
     res = residuals(model)
-    chi2 = [np.sum(np.asarray(res(u, t, y, mask, t_out, t_back, np.full(len(u), s))) ** 2,
-                   axis=1) for s in (1.0, -1.0)]
+    chi2 = [np.sum(np.asarray(res(u, on_device(replace(
+        trials, direction=np.full(len(u), s))))) ** 2, axis=1) for s in (1.0, -1.0)]
     return np.where(chi2[0] <= chi2[1], 1.0, -1.0)
 
 
@@ -158,9 +150,10 @@ def _emcee_summary(model, chain: ChainResult):
 EVAL_CHUNK = 256
 
 
-def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
+def _evaluator(model, data: tuple, pool: ThreadPoolExecutor, workers: int,
                max_rows: int, sampling: bool = False):
-    """``evaluate(U, idx)`` for the sampler: the rows cut into chunks of at most
+    """``evaluate(U, idx)`` for the sampler (``data``: :func:`_trial_data`): the rows cut
+    into chunks of at most
     :data:`EVAL_CHUNK` (padded to a power of two, so few shapes compile), evaluated
     on ``workers`` threads of ``pool`` (a JAX call releases the GIL).
 
@@ -173,7 +166,7 @@ def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
     def chunk(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
         n = U.shape[0]
         rows = pad_rows(np.arange(n), max(32, 1 << (n - 1).bit_length()))
-        return np.asarray(f(U[rows], idx[rows], data.t, *data.arrays()))[:n]
+        return np.asarray(f(U[rows], idx[rows], *data))[:n]
 
     def evaluate(U: np.ndarray, idx: np.ndarray) -> np.ndarray:
         parts = max(-(-U.shape[0] // EVAL_CHUNK), min(workers, U.shape[0] // 64))
@@ -190,7 +183,7 @@ def _evaluator(model, data: TrialData, pool: ThreadPoolExecutor, workers: int,
 
 
 def sample_posterior(
-    fit: FitResult, y, t, drive_input, *, method: str = "auto", noise: str = "ar1",
+    fit: FitResult, y, t=None, drive_input=None, *, method: str = "auto", noise: str = "ar1",
     nwalkers: int | None = None, max_steps: int = 3000, check_every: int = 25,
     min_tau_multiple: float = 50.0, seed: int = 0, chains_path=None, pilot_steps: int = 30,
 ) -> Posterior:
@@ -200,8 +193,11 @@ def sample_posterior(
     ----------
     fit : FitResult
         The least-squares fits (``drive="events"``) of the trials in ``y``.
-    y : array (n_trials, n_samples)
-        The force (N) that was fitted; NaN marks missing samples.
+    y : array (n_trials, n_samples), or Trials
+        The force (N) that was fitted; NaN marks missing samples. Or the
+        :class:`~frictionfit.fit.Trials` that were fitted (then ``t`` and ``drive_input``
+        are not given). Either way the posterior uses exactly the samples the fit used,
+        and the fit's channel signs (``fit.direction``).
     t : array (n_samples,)
         Sample times, s.
     drive_input : tuple
@@ -243,10 +239,8 @@ def sample_posterior(
     how = _settings(fit, method, noise, nwalkers, max_steps, check_every, min_tau_multiple,
                     seed, chains_path, pilot_steps)
     start = time.perf_counter()
-    y, t, t_out, t_back = _inputs(fit, y, t, drive_input)
-    mask = fit.sample_mask(y)  # exactly the samples the fit used (clipped runs left out)
-    y0 = np.where(mask, y, 0.0)
-    n = y.shape[0]
+    trials = _inputs(fit, y, t, drive_input)
+    n = trials.n_trials
     out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
                quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
                acceptance=np.full(n, np.nan), chains=[None] * n)
@@ -255,8 +249,7 @@ def sample_posterior(
                           priors=getattr(fit, "priors", None))
         rows = _sampled_rows(fit, model, out)
         if rows.size:
-            group = TrialGroup(model, rows, t, y0[rows], mask[rows], t_out[rows], t_back[rows])
-            _sample_group(fit, group, how, out)
+            _sample_group(fit, TrialGroup(model, rows, trials.take(rows)), how, out)
     return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
 
 
@@ -273,17 +266,24 @@ def _settings(fit, method, noise, nwalkers, max_steps, check_every, min_tau_mult
                            seed, chains_path, pilot_steps)
 
 
-def _inputs(fit: FitResult, y, t, drive_input):
-    """``y`` (N), ``t`` (s) and per-trial command times (s) as float64, checked."""
-    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    t = np.asarray(t, dtype=np.float64)
-    n = y.shape[0]
-    if n != fit.n_trials or y.shape[1] != t.size:
-        raise FitError(f"y is {y.shape} but the fit has {fit.n_trials} trials and t has "
-                       f"{t.size} samples")
-    t_out, t_back = (np.broadcast_to(np.asarray(a, dtype=np.float64), (n,)).copy()
-                     for a in drive_input)
-    return y, t, t_out, t_back
+def _inputs(fit: FitResult, y, t, drive_input) -> Trials:
+    """The fitted trials, checked against the fit, with the fit's channel signs where it has
+    them (a placeholder +1 otherwise: :func:`_noise` derives them)."""
+    if isinstance(y, Trials):
+        trials = y
+    else:
+        y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+        t = np.asarray(t, dtype=np.float64)
+        if y.shape[0] != fit.n_trials or y.shape[1] != t.size:
+            raise FitError(f"y is {y.shape} but the fit has {fit.n_trials} trials and t has "
+                           f"{t.size} samples")
+        trials = Trials.from_arrays(y, t, drive_input, direction=np.ones(y.shape[0]))
+    if trials.n_trials != fit.n_trials or trials.drive != "events":
+        raise FitError(f"{trials.n_trials} trials with drive={trials.drive!r}, but the fit has "
+                       f"{fit.n_trials} trials with drive='events'")
+    if fit.direction is not None:
+        trials = replace(trials, direction=np.asarray(fit.direction, dtype=np.float64))
+    return trials
 
 
 def _sampled_rows(fit: FitResult, model: ContactModel, out: dict) -> np.ndarray:
@@ -304,36 +304,35 @@ def _sampled_rows(fit: FitResult, model: ContactModel, out: dict) -> np.ndarray:
     return rows[ok]
 
 
-def _trial_data(group: TrialGroup, noise: _Noise, sel=slice(None)) -> TrialData:
-    """The :class:`TrialData` of the group's trials ``sel``.
-
-    Built through the package's name ``frictionfit.uncertainty.TrialData``, so that
-    a caller can observe exactly what the posterior evaluates.
-    """
-    import frictionfit.uncertainty as package
-
-    return package.TrialData(group.t, group.y[sel], group.mask[sel], group.t_out[sel],
-                             group.t_back[sel], noise.direction[sel], noise.sigma[sel],
-                             noise.rho[sel])
+def _trial_data(trials: Trials, noise: _Noise, sel=slice(None)) -> tuple:
+    """``(trials, sigma, rho)`` of the trials ``sel``, on the device, as the log-posterior
+    takes them."""
+    return (on_device(trials.take(sel)), jnp.asarray(noise.sigma[sel]),
+            jnp.asarray(noise.rho[sel]))
 
 
-def _noise(fit: FitResult, group: TrialGroup, u_hat: np.ndarray, white: bool) -> _Noise:
-    """Channel sign (the fit's), noise sd and AR(1) coefficient of the group's trials."""
-    model, rows = group.model, group.rows
-    args = (group.t, group.y, group.mask, group.t_out, group.t_back)
-    direction = (np.asarray(fit.direction, dtype=np.float64)[rows] if fit.direction is not None
-                 else _directions(model, *args, u_hat))
-    resid = np.asarray(residuals(model)(u_hat, *args, direction))
-    sigma, rho = noise_estimate(resid, group.mask, model.n_params)
-    return _Noise(direction, sigma, np.zeros_like(rho) if white else rho)
+def _with_directions(fit: FitResult, group: TrialGroup, u_hat: np.ndarray) -> Trials:
+    """The group's trials with the fit's channel signs; derived from ``u_hat`` only for a
+    fit that does not carry them."""
+    if fit.direction is not None:
+        return group.trials
+    return replace(group.trials, direction=_directions(group.model, group.trials, u_hat))
+
+
+def _noise(model: ContactModel, trials: Trials, u_hat: np.ndarray, white: bool) -> _Noise:
+    """Noise sd (N) and AR(1) coefficient of ``trials`` at the fit ``u_hat``."""
+    resid = np.asarray(residuals(model)(u_hat, on_device(trials)))
+    sigma, rho = noise_estimate(resid, trials.mask, model.n_params)
+    return _Noise(sigma, np.zeros_like(rho) if white else rho)
 
 
 def _sample_group(fit: FitResult, group: TrialGroup, how: SamplerSettings, out: dict) -> None:
     """Laplace for every trial of one model, then emcee where ``how.method`` asks for it."""
     model, rows = group.model, group.rows
     u_hat = np.stack([fit.u[i] for i in rows])
-    noise = _noise(fit, group, u_hat, how.noise == "white")
-    data = _trial_data(group, noise)
+    trials = _with_directions(fit, group, u_hat)
+    noise = _noise(model, trials, u_hat, how.noise == "white")
+    data = _trial_data(trials, noise)
     mode, cov, cond = laplace(model, data, u_hat)
     finite = np.all(np.isfinite(cov), axis=(1, 2))
     if how.method == "auto":
@@ -349,7 +348,8 @@ def _sample_group(fit: FitResult, group: TrialGroup, how: SamplerSettings, out: 
             _store_laplace(fit, model, i, mode[k], cov[k], bool(finite[k]), out)
     sel = np.flatnonzero(use_emcee)
     if sel.size:
-        _sample_emcee(group, noise, sel, mode[sel], cov[sel], how, out)
+        _sample_emcee(model, rows[sel], _trial_data(trials, noise, sel), mode[sel], cov[sel], how,
+                      out)
 
 
 def _store_laplace(fit: FitResult, model, i: int, mode, cov, finite: bool, out: dict) -> None:
@@ -367,10 +367,10 @@ def _store_laplace(fit: FitResult, model, i: int, mode, cov, finite: bool, out: 
                             f"{Status(int(fit.status[i])).name.lower()}; use emcee")
 
 
-def _sample_emcee(group: TrialGroup, noise: _Noise, sel, mode, cov, how: SamplerSettings,
-                  out: dict) -> None:
-    """emcee for the group's trials ``sel``, started from their Laplace ``mode`` and ``cov``."""
-    model, rows = group.model, group.rows
+def _sample_emcee(model: ContactModel, rows: np.ndarray, sub: tuple, mode, cov,
+                  how: SamplerSettings, out: dict) -> None:
+    """emcee for the trials ``rows`` of the batch (``sub``: their :func:`_trial_data`),
+    started from their Laplace ``mode`` and ``cov``."""
     nwalkers = how.nwalkers or 2 * model.n_params + 2
     fallback = np.diag(np.full(model.n_params, 1e-2))
     covs = np.stack([c if np.all(np.isfinite(c)) else fallback for c in cov])
@@ -381,17 +381,16 @@ def _sample_emcee(group: TrialGroup, noise: _Noise, sel, mode, cov, how: Sampler
     covs = covs * jac[:, :, None] * jac[:, None, :]
     backends = None
     if how.chains_path is not None:
-        backends = [HDFBackend(str(how.chains_path), name=f"trial_{rows[k]}") for k in sel]
-    sub = _trial_data(group, noise, sel)
+        backends = [HDFBackend(str(how.chains_path), name=f"trial_{i}") for i in rows]
     workers = available_cores()
     with ThreadPoolExecutor(workers) as pool:
-        evaluate = _evaluator(model, sub, pool, workers, sel.size * nwalkers, sampling=True)
+        evaluate = _evaluator(model, sub, pool, workers, rows.size * nwalkers, sampling=True)
         chains = run_lockstep(evaluate, x_mode, covs, nwalkers=nwalkers, seed=how.seed,
                               max_steps=how.max_steps, check_every=how.check_every,
                               min_tau_multiple=how.min_tau_multiple, backends=backends,
                               pilot_steps=how.pilot_steps)
-    for k, chain in zip(sel, chains, strict=True):
-        _store_emcee(model, rows[k], chain, out)
+    for i, chain in zip(rows, chains, strict=True):
+        _store_emcee(model, i, chain, out)
 
 
 def _store_emcee(model, i: int, chain, out: dict) -> None:

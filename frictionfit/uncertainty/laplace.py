@@ -21,10 +21,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit import Trials
 from frictionfit.fit._noise import ar1_innovations
 from frictionfit.fit._numerics import scaled_condition, scaled_pinv
 from frictionfit.models import ContactModel
-from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, TrialData, logp_rows
+from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, ROW_AXES, logp_rows
 
 __all__ = ["laplace", "profile_disagreement"]
 
@@ -47,31 +48,33 @@ def _prior_terms(model: ContactModel, u):
 def _curvature(model: ContactModel):
     """Jitted per-trial Gauss-Newton Hessian and gradient of the negative log-posterior."""
 
-    def whitened(u, t, y, mask, t_out, t_back, direction, sigma, rho):
-        r = jnp.where(mask, model.predict(u, t, (t_out, t_back), direction) - y, 0.0)
-        innov, factor = ar1_innovations(r, mask, rho)
+    def whitened(u, trial: Trials, sigma, rho):
+        pred = model.predict(u, trial.t, trial.drive_input, trial.direction)
+        r = jnp.where(trial.mask, pred - trial.y, 0.0)
+        innov, factor = ar1_innovations(r, trial.mask, rho)
         sd = sigma * jnp.sqrt(factor)
         # The model's Normal priors are residual rows of their own (Gauss-Newton too).
-        return jnp.concatenate([jnp.where(mask, innov / sd, 0.0), model.prior_residuals(u)])
+        return jnp.concatenate([jnp.where(trial.mask, innov / sd, 0.0),
+                                model.prior_residuals(u)])
 
-    def one(u, t, y, mask, t_out, t_back, direction, sigma, rho):
-        args = (t, y, mask, t_out, t_back, direction, sigma, rho)
-        w = whitened(u, *args)
-        jac = jax.jacfwd(whitened)(u, *args)
+    def one(u, trial: Trials, sigma, rho):
+        w = whitened(u, trial, sigma, rho)
+        jac = jax.jacfwd(whitened)(u, trial, sigma, rho)
         g_prior, h_prior = _prior_terms(model, u)
         return jac.T @ jac + jnp.diag(h_prior), jac.T @ w + g_prior
 
-    return jax.jit(jax.vmap(one, in_axes=(0, None, 0, 0, 0, 0, 0, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(0, ROW_AXES, 0, 0)))
 
 
-def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
+def laplace(model: ContactModel, data: tuple, u_hat: np.ndarray):
     """Posterior mode, covariance and scaled-Hessian condition number per trial.
 
     Parameters
     ----------
     model : ContactModel
-    data : TrialData
-        The trials (same order as ``u_hat``).
+    data : tuple
+        ``(trials, sigma, rho)``: the trials (:func:`~frictionfit.uncertainty._logpost.on_device`,
+        same order as ``u_hat``), their noise sd (N) and AR(1) coefficients.
     u_hat : ndarray (n_trials, n_params)
         Least-squares optimum (unconstrained).
 
@@ -86,14 +89,13 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     curv = _curvature(model)
     logp = logp_rows(model)
     idx = np.arange(u_hat.shape[0])
-    h, g = (np.asarray(a) for a in curv(jnp.asarray(u_hat), data.t, *data.arrays()))
+    h, g = (np.asarray(a) for a in curv(jnp.asarray(u_hat), *data))
     step = np.stack([-scaled_pinv(hi) @ gi if np.all(np.isfinite(hi)) and np.all(np.isfinite(gi))
                      else np.zeros_like(gi) for hi, gi in zip(h, g, strict=True)])
     cand = u_hat + step
-    better = np.asarray(logp(cand, idx, data.t, *data.arrays())) > np.asarray(
-        logp(u_hat, idx, data.t, *data.arrays()))
+    better = np.asarray(logp(cand, idx, *data)) > np.asarray(logp(u_hat, idx, *data))
     mode = np.where(better[:, None], cand, u_hat)
-    h, _ = (np.asarray(a) for a in curv(jnp.asarray(mode), data.t, *data.arrays()))
+    h, _ = (np.asarray(a) for a in curv(jnp.asarray(mode), *data))
     cov = np.full_like(h, np.nan)
     cond = np.full(h.shape[0], np.inf)
     for i, hi in enumerate(h):
@@ -103,9 +105,10 @@ def laplace(model: ContactModel, data: TrialData, u_hat: np.ndarray):
     return mode, cov, cond
 
 
-def profile_disagreement(model: ContactModel, data: TrialData, mode: np.ndarray,
+def profile_disagreement(model: ContactModel, data: tuple, mode: np.ndarray,
                          cov: np.ndarray) -> np.ndarray:
-    """Per trial, max over parameters and sides of ``|drop - 2|`` at 2 sd (see module doc)."""
+    """Per trial, max over parameters and sides of ``|drop - 2|`` at 2 sd (see module doc);
+    ``data`` as for :func:`laplace`."""
     n, p = mode.shape
     sd = np.sqrt(np.maximum(np.einsum("tii->ti", cov), 1e-300))
     line = cov / sd[:, None, :]  # column j: the Gaussian profile direction of parameter j
@@ -113,7 +116,7 @@ def profile_disagreement(model: ContactModel, data: TrialData, mode: np.ndarray,
     pts = (mode[:, None, :] + offsets).reshape(-1, p)
     idx = np.repeat(np.arange(n), 2 * p)
     logp = logp_rows(model)
-    at_mode = np.asarray(logp(mode, np.arange(n), data.t, *data.arrays()))
-    around = np.asarray(logp(np.nan_to_num(pts), idx, data.t, *data.arrays())).reshape(n, 2 * p)
+    at_mode = np.asarray(logp(mode, np.arange(n), *data))
+    around = np.asarray(logp(np.nan_to_num(pts), idx, *data)).reshape(n, 2 * p)
     dev = np.abs(at_mode[:, None] - around - 2.0)
     return np.where(np.all(np.isfinite(cov), axis=(1, 2)), np.max(dev, axis=1), np.inf)
