@@ -76,8 +76,6 @@ def fit(
         if used:
             raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
                                      "--motions", param_hint="--whole")
-        if rig not in ("recording", "session"):
-            raise typer.BadParameter(f"{rig!r}: choose recording or session", param_hint="--rig")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
                    priors, stroke_mm, rig, _Output(out, plot, report))
         return
@@ -220,6 +218,8 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
 
+    if rig not in ("recording", "session"):
+        raise typer.BadParameter(f"{rig!r}: choose recording or session", param_hint="--rig")
     if law == "auto" and (priors or stroke_mm != 1.0):
         raise typer.BadParameter("priors and a stroke need one law: choose --model",
                                  param_hint="--prior / --stroke-mm")

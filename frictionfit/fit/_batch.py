@@ -209,16 +209,15 @@ def fit_trials(
     direction : array (n_trials,), optional
         +1/-1 per trial; estimated from the out stroke when omitted.
     solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or an optimistix least-squares solver
-        ``"lm"``: frictionfit's :class:`BatchedLevenbergMarquardt` (the fastest); the
-        others are optimistix's ``LevenbergMarquardt``, ``Dogleg`` and ``GaussNewton``.
-        A configured solver object brings its own tolerances (``rtol``, ``atol`` and
-        ``ftol`` are then unused). Every solver runs in the same refilled pools of slots.
+        ``"lm"``: :class:`BatchedLevenbergMarquardt` (the fastest); the others optimistix's
+        ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``. A solver object brings its own
+        tolerances. Every solver runs in the same refilled pools of slots.
     max_steps, steps_per_round, chunk_size : int
         Step budget per trial; steps per compiled call, between refills of the pool;
         slots per pool (32 was the fastest, see ``docs/decisions.md``).
     rtol, atol, ftol : float
-        Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: the optimistix solvers'
-        only); relative cost decrease (``ftol``, the LM's).
+        Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: optimistix's); relative cost
+        decrease (``ftol``, the LM's).
     u0 : array (n_trials, n_params), optional
         Unconstrained starting points (a single named model only).
     n_starts, seed : int
@@ -237,8 +236,8 @@ def fit_trials(
         the log) replacing the defaults (``RAMP_PRIOR`` on ``ramp``); ``None``: flat.
         The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
-        Host threads, a pool each (results do not depend on it, bit for bit).
-        Default: the cores this process may use.
+        Host threads, a pool each (default: the cores this process may use; results do
+        not depend on it, bit for bit).
 
     Returns
     -------
@@ -256,8 +255,8 @@ def fit_trials(
     """
     start = time.perf_counter()
     trials = as_trials(y, t, drive_input, drive=drive, direction=direction)
-    solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round,
-                             chunk_size, threads)
+    solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
+                             threads)
     how = _member_settings(trials.drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
     batch = _prepare(trials)
     members = _members(model, how)
