@@ -242,8 +242,7 @@ def fit_trials(
     Returns
     -------
     FitResult
-        One row per trial, with a Status each (a failed trial never sinks the batch;
-        a clipped run of samples is left out, ``Status.SATURATED``).
+        A row and a Status per trial (a failed trial never sinks the batch; clipped: SATURATED).
 
     Examples
     --------
