@@ -213,16 +213,15 @@ def fit_trials(
         ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``. A solver object brings its own
         tolerances. Every solver runs in the same refilled pools of slots.
     max_steps, steps_per_round, chunk_size : int
-        Step budget per trial; steps per compiled call, between refills of the pool;
-        slots per pool (32 was the fastest, see ``docs/decisions.md``).
+        Steps per trial; steps per compiled call, between refills; slots per pool (32).
     rtol, atol, ftol : float
         Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: optimistix's); relative cost
         decrease (``ftol``, the LM's).
     u0 : array (n_trials, n_params), optional
-        Unconstrained starting points (a single named model only).
+        Unconstrained starting points (one named model only).
     n_starts, seed : int
-        The data-driven guess plus ``n_starts - 1`` jitters seeded per trial (by its own
-        samples: results do not depend on the batch); the lowest-cost optimum is kept.
+        The guess plus ``n_starts - 1`` jitters seeded by each trial's own samples (results
+        do not depend on the batch); the lowest-cost optimum is kept.
     fix : mapping name -> physical value, optional
         Parameters held at a known value (flagged "fixed", stderr 0).
     tie, groups : sequence of str, array (n_trials,)
