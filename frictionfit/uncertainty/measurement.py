@@ -53,11 +53,10 @@ __all__ = ["measurement_posterior"]
 _SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
 
 
-@lru_cache(maxsize=16)
-def _density_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """Jitted ``f(U (R, q), idx (R,), data, s2) -> log density (R,)`` in the fit's
-    unconstrained coordinates of the ``free`` parameters: row ``r`` a point of item
-    ``idx[r]`` of the stacked ``data``; ``s2`` (per item) the variance of a block."""
+def _log_density(model: MeasurementModel, free: tuple[int, ...]):
+    """``f(u_free, i, data, s2)``: the log density at the free parameters ``u_free`` (the
+    fit's unconstrained coordinates) of item ``i`` of the stacked ``data``; ``s2`` (per
+    item) the variance of a weighted block residual (N^2)."""
     residual = _residual_fn(model, free)
 
     def one(u_free, i, data, s2):
@@ -65,24 +64,29 @@ def _density_fn(model: MeasurementModel, free: tuple[int, ...]):
         lp = -0.5 * jnp.sum(r**2) / s2[i]
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    return one
+
+
+@lru_cache(maxsize=16)
+def _density_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted :func:`_log_density` over rows: ``f(U (R, q), idx (R,), data, s2) -> (R,)``."""
+    return jax.jit(jax.vmap(_log_density(model, free), in_axes=(0, 0, None, None)))
 
 
 @lru_cache(maxsize=16)
 def _sampling_density_fn(model: MeasurementModel, free: tuple[int, ...]):
     """:func:`_density_fn` in sampling coordinates of the free parameters, flat on their
     bounds there (-inf outside): ``f(X (R, q), idx, data, s2, x_base (n, p))``."""
-    density = _density_fn(model, free)
+    density = _log_density(model, free)
     lo, hi = (b[list(free)] for b in sampling_bounds(model))
     free_idx = jnp.asarray(free)
 
-    def rows(x, idx, data, s2, x_base):
-        full = x_base[idx].at[:, free_idx].set(x)
-        u = from_sampling(model, full, jnp)[:, free_idx]
-        inside = jnp.all((x > lo) & (x < hi), axis=-1)
-        return jnp.where(inside, density(u, idx, data, s2), -jnp.inf)
+    def one(x, i, data, s2, x_base):
+        u = from_sampling(model, x_base[i].at[free_idx].set(x), jnp)[free_idx]
+        inside = jnp.all((x > lo) & (x < hi))
+        return jnp.where(inside, density(u, i, data, s2), -jnp.inf)
 
-    return jax.jit(rows)
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
 
 
 def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
