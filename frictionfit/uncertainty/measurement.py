@@ -258,6 +258,9 @@ def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) 
     out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _laplace_summary(
         model, draws)
     out["converged"][i] = int(fit.status[i]) == Status.CONVERGED
+    pinned = [n for n, f in fit.flags[i].items() if f in ("at bound", "singular")]
+    if pinned:  # the Gaussian has (almost) no width there: no interval
+        out["reason"][i] += f"; no interval for {', '.join(pinned)} (at bound or singular)"
     if not out["converged"][i]:
         out["reason"][i] = (f"laplace at a fit that ended "
                             f"{Status(int(fit.status[i])).name.lower()}; use emcee")
