@@ -230,12 +230,12 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
                   out: dict, emcee_kw: dict) -> None:
     """Laplace for the rows of one model and free set, then emcee where ``method`` asks."""
     u_hat = np.stack([fit.u[i] for i in rows])
-    sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0])) for i in rows]
-    data = tuple(jnp.asarray(a) for a in _stack(sub, u_hat))
     free_l = list(free)
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
-    s2 = (None if method == "laplace"
-          else jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows])))
+    if method != "laplace":  # the density is needed
+        sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0])) for i in rows]
+        data = tuple(jnp.asarray(a) for a in _stack(sub, u_hat))
+        s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
     if method == "auto":
         dev = _profile_disagreement(model, free, data, s2, mode, cov)
         reasons = [_auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
