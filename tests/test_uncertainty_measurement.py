@@ -13,7 +13,12 @@ from frictionfit.fit.measurement import fit_measurements, measurement_data
 from frictionfit.fit.result import take_trials
 from frictionfit.simulation.materials import CLASSES
 from frictionfit.simulation.measurements import simulate_measurements
-from frictionfit.uncertainty import measurement_posterior, posterior_summary, to_arviz
+from frictionfit.uncertainty import (
+    corner_plot,
+    measurement_posterior,
+    posterior_summary,
+    to_arviz,
+)
 
 #: Well identified in both recordings: unflagged, stderr a few per cent of the value.
 IDENTIFIED = ("k", "f_kin")
@@ -58,7 +63,7 @@ def test_laplace_is_deterministic_given_the_seed(fitted, laplace):
         assert not np.array_equal(other.quantiles[0][name], laplace.quantiles[0][name])
 
 
-def test_emcee_agrees_with_laplace_on_a_well_identified_recording(fitted, laplace):
+def test_emcee_agrees_with_laplace_on_a_well_identified_recording(fitted, laplace, tmp_path):
     items, res = fitted
     mc = measurement_posterior(take_trials(res, [0]), items[:1], method="emcee", seed=0,
                               max_steps=600)
@@ -73,6 +78,9 @@ def test_emcee_agrees_with_laplace_on_a_well_identified_recording(fitted, laplac
     assert set(IDENTIFIED) <= set(table["param"]) and table["converged"].all()
     draws = to_arviz(mc, 0).posterior["k"].to_numpy()
     assert np.median(draws) == pytest.approx(mc.quantiles[0]["k"][2], rel=1e-6)
+    mc.chains[0].samples[..., -1] = 0.0  # as a parameter held at the fit: left out
+    corner_plot(mc, 0, tmp_path / "corner.png")
+    assert (tmp_path / "corner.png").stat().st_size > 0
 
 
 def test_emcee_is_deterministic_given_the_seed(fitted):

@@ -157,6 +157,7 @@ def corner_plot(post: Posterior, i: int, path) -> None:
     import matplotlib.pyplot as plt
 
     draws = post.samples(i)
+    draws = draws.loc[:, draws.nunique() > 1]  # parameters held fixed have no range to plot
     labels = [f"{n} [{PARAMS[n].unit}]" for n in draws.columns]
     fig = corner.corner(draws.to_numpy(), labels=labels, quantiles=[0.16, 0.5, 0.84])
     fig.savefig(path, dpi=80)
