@@ -16,9 +16,7 @@ covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximatio
   parameters; flat on the bounds there), all recordings' walkers in one ensemble with
   :func:`~frictionfit.uncertainty._ensemble.run_lockstep` (adaptive independence proposal,
   started from the Laplace Gaussian, each recording run to >= ``min_tau_multiple``
-  integrated autocorrelation times), one jitted, vmapped JAX call per step. A parameter
-  the fit pinned at a bound (and the time of a branch pinned there) is held at the fit
-  (the row's reason says which).
+  integrated autocorrelation times), one jitted, vmapped JAX call per step.
 - ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
