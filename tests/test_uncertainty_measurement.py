@@ -110,15 +110,3 @@ def test_only_whole_measurement_fits_are_accepted(fitted):
         measurement_posterior(dataclasses.replace(res, drive="events"), items)
     with pytest.raises(FitError, match="1 items but the fit has 2 rows"):
         measurement_posterior(res, items[:1])
-
-
-def test_emcee_holds_a_branch_pinned_at_its_bound():
-    from frictionfit.models import MeasurementModel
-    from frictionfit.uncertainty.measurement import _sampled
-
-    model = MeasurementModel("relaxation2")
-    free = tuple(range(model.n_params))
-    names = [model.param_names[j]
-             for j in _sampled(model, free, {"relax_frac2": "at bound", "k": "stderr > value"})]
-    assert "relax_frac2" not in names and "tau2" not in names  # its time goes with it
-    assert {"k", "relax_frac", "tau"} <= set(names) and len(names) == model.n_params - 2

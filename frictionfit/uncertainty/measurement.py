@@ -41,7 +41,6 @@ from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import fd_slope, pad_rows
-from frictionfit.fit._stats import GATED
 from frictionfit.fit.measurement import MeasurementData, _residual_fn, _stack
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
@@ -249,27 +248,9 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
             draws = np.repeat(u_hat[k][None], n_draws, axis=0)
             draws[:, free_l] = _laplace_draws(mode[k], cov[k], n_draws, rng)
             _store_laplace(fit, model, i, draws, out)
-    by_set: dict = {}
-    for k in np.flatnonzero(use_emcee):
-        by_set.setdefault(_sampled(model, free, fit.flags[rows[k]]), []).append(k)
-    for sampled, sel in by_set.items():
-        pos = [free.index(j) for j in sampled]
-        _sample_emcee(model, sampled, data, s2, u_hat, cov[:, pos][:, :, pos], np.array(sel),
-                      rows, out, emcee_kw)
-        held = [model.param_names[j] for j in free if j not in sampled]
-        for k in sel:
-            if held:
-                out["reason"][rows[k]] += f"; held at the fit: {', '.join(held)}"
-
-
-def _sampled(model: MeasurementModel, free: tuple[int, ...], flags: dict) -> tuple[int, ...]:
-    """The free parameters emcee samples: not those the fit pinned at a bound, nor the
-    shape of an effect pinned there (:data:`~frictionfit.fit._stats.GATED`: the time of a
-    branch that does not relax). A branch at its bound leaves its time free over the
-    whole range, a flat direction along which the chain mixes slowly."""
-    pinned = {n for n, f in flags.items() if f == "at bound"}
-    pinned |= {shape for shape, size in GATED.items() if size in pinned}
-    return tuple(j for j in free if model.param_names[j] not in pinned)
+    sel = np.flatnonzero(use_emcee)
+    if sel.size:
+        _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, emcee_kw)
 
 
 def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) -> None:
