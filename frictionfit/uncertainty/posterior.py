@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from frictionfit.models import PARAMS, get_model
+from frictionfit.models import PARAMS, MeasurementModel, get_model
 from frictionfit.uncertainty._ensemble import ChainResult
 
 __all__ = ["QUANTILES", "Posterior", "corner_plot", "posterior_summary", "to_arviz"]
@@ -67,7 +67,7 @@ class Posterior:
         if chain is None:
             raise ValueError(f"trial {i} has no emcee chain (method {self.method[i]!r})")
         flat = chain.samples.reshape(-1, chain.samples.shape[-1])
-        model = get_model(self.model[i])
+        model = _member(self.model[i])
         return pd.DataFrame({p.name: np.asarray(p.to_physical(flat[:, j]))
                              for j, p in enumerate(model.params)})
 
@@ -87,6 +87,13 @@ class Posterior:
                 row[f"{name}_ess"] = self.ess[i][name]
             rows.append(row)
         return pd.DataFrame(rows)
+
+
+def _member(name: str):
+    """The model called ``name``: a family member, or a whole-measurement model."""
+    if name.startswith("measurement-"):
+        return MeasurementModel(name.removeprefix("measurement-"))
+    return get_model(name)
 
 
 class SummaryTable(pd.DataFrame):
@@ -134,7 +141,7 @@ def to_arviz(post: Posterior, i: int = 0):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)  # arviz announces its refactor
         import arviz as az
-    model = get_model(post.model[i])
+    model = _member(post.model[i])
     # emcee chains are (step, walker, p); arviz wants (chain=walker, draw=step).
     draws = {p.name: np.asarray(p.to_physical(chain.samples[:, :, j].T))
              for j, p in enumerate(model.params)}
@@ -150,6 +157,7 @@ def corner_plot(post: Posterior, i: int, path) -> None:
     import matplotlib.pyplot as plt
 
     draws = post.samples(i)
+    draws = draws.loc[:, draws.nunique() > 1]  # parameters held fixed have no range to plot
     labels = [f"{n} [{PARAMS[n].unit}]" for n in draws.columns]
     fig = corner.corner(draws.to_numpy(), labels=labels, quantiles=[0.16, 0.5, 0.84])
     fig.savefig(path, dpi=80)

@@ -1,0 +1,308 @@
+"""Posteriors of whole-measurement fits: Laplace and emcee.
+
+:func:`measurement_posterior` takes the :class:`~frictionfit.fit.FitResult` of
+:func:`~frictionfit.fit.measurement.fit_measurements` and the items it was fitted to and
+returns a :class:`~frictionfit.uncertainty.Posterior`, one row per recording x channel.
+
+The density is the fit's own: its residual (weighted block residuals, then the model's
+prior rows scaled by the recording's noise sd) over the variance per block that the fit's
+covariance implies, ``s2 = redchi (1 + rho) / (1 - rho)`` (``rho``: lag-1 coefficient of the
+block residuals, as in the fit). Its mode is the fit's optimum and its Gauss-Newton
+covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximation.
+
+- ``"laplace"``: draws from ``N(u_hat, cov)`` over the free parameters in the fit's
+  unconstrained coordinates, mapped to physical units; quantiles and sd of the draws.
+- ``"emcee"``: the density above in sampling coordinates (the log of ``loglogit``
+  parameters; flat on the bounds there), all recordings' walkers in one ensemble with
+  :func:`~frictionfit.uncertainty._ensemble.run_lockstep` (adaptive independence proposal,
+  started from the Laplace Gaussian, each recording run to >= ``min_tau_multiple``
+  integrated autocorrelation times), one jitted, vmapped JAX call per step.
+- ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
+  ``CONVERGED``, a parameter "at bound" or "singular", condition number above
+  :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
+
+Fixed and tied parameters stay at the fit's values. Rows whose fit failed (non-finite,
+too little data, no finite covariance) get method ``"none"``, the reason, NaN numbers and
+``converged=False``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from frictionfit.errors import FitError, Status
+from frictionfit.fit import FitResult
+from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
+from frictionfit.fit._numerics import fd_slope, pad_rows
+from frictionfit.fit.measurement import MeasurementData, _residual_fn, _stack
+from frictionfit.models import MeasurementModel
+from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
+from frictionfit.uncertainty._logpost import from_sampling, sampling_bounds, to_sampling
+from frictionfit.uncertainty.engine import METHODS, _auto_reason, _emcee_summary
+from frictionfit.uncertainty.posterior import QUANTILES, Posterior
+
+__all__ = ["measurement_posterior"]
+
+_SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
+
+
+def _log_density(model: MeasurementModel, free: tuple[int, ...]):
+    """``f(u_free, i, data, s2)``: the log density at the free parameters ``u_free`` (the
+    fit's unconstrained coordinates) of item ``i`` of the stacked ``data``; ``s2`` (per
+    item) the variance of a weighted block residual (N^2)."""
+    residual = _residual_fn(model, free)
+
+    def one(u_free, i, data, s2):
+        r = residual(u_free, jax.tree_util.tree_map(lambda a: a[i], data))
+        lp = -0.5 * jnp.sum(r**2) / s2[i]
+        return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+
+    return one
+
+
+@lru_cache(maxsize=16)
+def _density_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted :func:`_log_density` over rows: ``f(U (R, q), idx (R,), data, s2) -> (R,)``."""
+    return jax.jit(jax.vmap(_log_density(model, free), in_axes=(0, 0, None, None)))
+
+
+@lru_cache(maxsize=16)
+def _sampling_density_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """:func:`_density_fn` in sampling coordinates of the free parameters, flat on their
+    bounds there (-inf outside): ``f(X (R, q), idx, data, s2, x_base (n, p))``."""
+    density = _log_density(model, free)
+    lo, hi = (b[list(free)] for b in sampling_bounds(model))
+    free_idx = jnp.asarray(free)
+
+    def one(x, i, data, s2, x_base):
+        u = from_sampling(model, x_base[i].at[free_idx].set(x), jnp)[free_idx]
+        inside = jnp.all((x > lo) & (x < hi))
+        return jnp.where(inside, density(u, i, data, s2), -jnp.inf)
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
+
+
+def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
+                    data: tuple, redchi: np.ndarray) -> np.ndarray:
+    """Per item, the variance of a weighted block residual the fit's covariance implies
+    (N^2): ``redchi (1 + rho) / (1 - rho)``, ``rho`` the residuals' lag-1 coefficient."""
+    residual = jax.jit(jax.vmap(_residual_fn(model, free)))
+    n = data[0].shape[1]
+    resid = np.asarray(residual(jnp.asarray(u_free), data))[:, :n]
+    rho = np.clip(lag1_rho(resid, data[1] > 0), *RHO_POSTERIOR)
+    return redchi * (1 + rho) / (1 - rho)
+
+
+def _profile_disagreement(model, free, data, s2, mode: np.ndarray, cov: np.ndarray
+                          ) -> np.ndarray:
+    """Per item, max over free parameters and sides of ``|drop - 2|`` of the log density
+    2 sd out along the parameter's Gaussian profile line (0 for an exact Gaussian)."""
+    n, q = mode.shape
+    sd = np.sqrt(np.maximum(np.einsum("tii->ti", cov), 1e-300))
+    line = cov / sd[:, None, :]
+    pts = (mode[:, None, :] + np.concatenate([2 * line, -2 * line], axis=2).transpose(0, 2, 1))
+    density = _density_fn(model, free)
+    at_mode = np.asarray(density(jnp.asarray(mode), jnp.arange(n), data, s2))
+    around = np.asarray(density(jnp.asarray(pts.reshape(-1, q)), jnp.repeat(jnp.arange(n), 2 * q),
+                                data, s2)).reshape(n, 2 * q)
+    return np.max(np.abs(at_mode[:, None] - around - 2.0), axis=1)
+
+
+def _laplace_draws(mode: np.ndarray, cov: np.ndarray, n_draws: int,
+                   rng: np.random.Generator) -> np.ndarray:
+    """``n_draws`` draws of ``N(mode, cov)`` (eigen-factor: exact for a semidefinite cov)."""
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    z = rng.standard_normal((n_draws, mode.size))
+    return mode + (z * np.sqrt(np.maximum(w, 0.0))) @ v.T
+
+
+def _laplace_summary(model: MeasurementModel, draws: np.ndarray):
+    """Quantiles and sd (physical) of full unconstrained ``draws (n, p)``; tau and ESS NaN
+    (independent draws)."""
+    nan = np.full(model.n_params, np.nan)
+    quant, sd, tau, ess = _emcee_summary(
+        model, ChainResult(draws[:, None, :], nan, len(draws), 0, 1, np.nan, False))
+    return quant, sd, dict.fromkeys(tau, np.nan), dict.fromkeys(ess, np.nan)
+
+
+def measurement_posterior(
+    fit: FitResult, items: Sequence[MeasurementData], *, method: str = "auto",
+    n_draws: int = 4000, nwalkers: int | None = None, max_steps: int = 2000,
+    check_every: int = 25, min_tau_multiple: float = 50.0, pilot_steps: int = 30,
+    seed: int = 0,
+) -> Posterior:
+    """Posterior of every row of a whole-measurement fit, by Laplace and/or emcee.
+
+    Parameters
+    ----------
+    fit : FitResult
+        The result of :func:`~frictionfit.fit.measurement.fit_measurements` on ``items``.
+    items : sequence of MeasurementData
+        The items fitted, in the fit's row order (their command times are taken from the
+        fit, which carries each movement's own latency).
+    method : {"auto", "laplace", "emcee"}
+        See the module docstring.
+    n_draws : int
+        Laplace draws per row.
+    nwalkers : int, optional
+        emcee walkers per row; default ``2 * n_free + 2``.
+    max_steps, check_every, min_tau_multiple, pilot_steps
+        emcee: step cap of the kept chain, steps between tau checks, required chain length
+        in tau, steps of each adaptation stage.
+    seed : int
+        Seed of the Laplace draws and of the emcee walkers and moves (one stream per
+        batch: a row's emcee draws depend on the rows sampled with it).
+
+    Returns
+    -------
+    Posterior
+        One entry per row (physical units); ``chains[i]`` holds emcee's chain in the fit's
+        unconstrained coordinates of every parameter (fixed ones constant).
+
+    Examples
+    --------
+    >>> from frictionfit.fit.measurement import fit_measurements, measurement_data
+    >>> from frictionfit.simulation.measurements import simulate_measurements
+    >>> rec, = simulate_measurements([(1, "paper-2", 1)], seed=3)
+    >>> items = [measurement_data(rec, "index_x")]
+    >>> res = fit_measurements(items, progress=False)
+    >>> post = measurement_posterior(res, items, method="laplace")
+    >>> post.method
+    ['laplace']
+    """
+    if fit.drive != "measurement":
+        raise FitError(f"measurement_posterior needs a whole-measurement fit, not drive="
+                       f"{fit.drive!r} (use sample_posterior)")
+    if method not in METHODS:
+        raise FitError(f"unknown uncertainty method {method!r}; choose from {METHODS}")
+    if len(items) != fit.n_trials:
+        raise FitError(f"{len(items)} items but the fit has {fit.n_trials} rows")
+    start = time.perf_counter()
+    n = fit.n_trials
+    out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
+               quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
+               acceptance=np.full(n, np.nan), chains=[None] * n)
+    groups: dict = {}
+    for i in range(n):
+        model = fit.member(i)
+        free = tuple(model.param_names.index(p) for p in fit.free_names(i))
+        _nan_row(model, i, out)
+        why = _unusable(fit, i)
+        if why:
+            out["reason"][i] = f"skipped: {why}"
+        else:
+            groups.setdefault((model, free), []).append(i)
+    rng = np.random.default_rng(seed)
+    for (model, free), rows in groups.items():
+        _sample_group(fit, items, model, free, np.array(rows), method, n_draws, rng, out,
+                      dict(nwalkers=nwalkers or 2 * len(free) + 2, seed=seed,
+                           max_steps=max_steps, check_every=check_every,
+                           min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
+    return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
+
+
+def _nan_row(model: MeasurementModel, i: int, out: dict) -> None:
+    nan = dict.fromkeys(model.param_names, np.nan)
+    out["quantiles"][i] = {p: np.full(len(QUANTILES), np.nan) for p in model.param_names}
+    out["sd"][i], out["tau"][i], out["ess"][i] = dict(nan), dict(nan), dict(nan)
+
+
+def _unusable(fit: FitResult, i: int) -> str:
+    """Why row ``i`` has no posterior ("" when it can be sampled)."""
+    if Status(int(fit.status[i])) in _SKIP:
+        return f"fit status {Status(int(fit.status[i])).name.lower()}"
+    if not np.all(np.isfinite(fit.u[i])):
+        return "non-finite optimum"
+    if fit.cov is None or not np.all(np.isfinite(fit.cov[i])):
+        return "covariance not finite (a parameter the data do not determine: see the flags)"
+    return ""
+
+
+def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[int, ...],
+                  rows: np.ndarray, method: str, n_draws: int, rng: np.random.Generator,
+                  out: dict, emcee_kw: dict) -> None:
+    """Laplace for the rows of one model and free set, then emcee where ``method`` asks."""
+    u_hat = np.stack([fit.u[i] for i in rows])
+    free_l = list(free)
+    mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
+    if method != "laplace":  # the density is needed
+        sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0])) for i in rows]
+        data = tuple(jnp.asarray(a) for a in _stack(sub, u_hat))
+        s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
+    if method == "auto":
+        dev = _profile_disagreement(model, free, data, s2, mode, cov)
+        reasons = [_auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
+    else:
+        reasons = [method] * rows.size
+    use_emcee = np.array([method == "emcee" or bool(r) for r in reasons]) & (method != "laplace")
+    for k, i in enumerate(rows):
+        out["reason"][i] = reasons[k] or "laplace ok"
+        if not use_emcee[k]:
+            draws = np.repeat(u_hat[k][None], n_draws, axis=0)
+            draws[:, free_l] = _laplace_draws(mode[k], cov[k], n_draws, rng)
+            _store_laplace(fit, model, i, draws, out)
+    sel = np.flatnonzero(use_emcee)
+    if sel.size:
+        _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, emcee_kw)
+
+
+def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) -> None:
+    out["method"][i] = "laplace"
+    out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _laplace_summary(
+        model, draws)
+    out["converged"][i] = int(fit.status[i]) == Status.CONVERGED
+    pinned = [n for n, f in fit.flags[i].items() if f in ("at bound", "singular")]
+    if pinned:  # the Gaussian has (almost) no width there: no interval
+        out["reason"][i] += f"; no interval for {', '.join(pinned)} (at bound or singular)"
+    if not out["converged"][i]:
+        out["reason"][i] = (f"laplace at a fit that ended "
+                            f"{Status(int(fit.status[i])).name.lower()}; use emcee")
+
+
+def _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, kw: dict) -> None:
+    """emcee for the group's rows ``sel``, started from their Laplace Gaussian carried to
+    sampling coordinates (to first order; the pilot stages correct it)."""
+    free_l = list(free)
+    x_base = to_sampling(model, u_hat)
+    slope = fd_slope(lambda u: to_sampling(model, u), u_hat)[:, free_l]
+    covs = cov * slope[:, :, None] * slope[:, None, :]
+    f = _sampling_density_fn(model, free)
+    sub = jax.tree_util.tree_map(lambda a: a[sel], data)
+    s2_sub, x_sub = s2[sel], jnp.asarray(x_base[sel])
+
+    def evaluate(x: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        # padded to a power of two: few shapes compile as rows finish
+        r = pad_rows(np.arange(x.shape[0]), 1 << (x.shape[0] - 1).bit_length())
+        return np.asarray(f(jnp.asarray(x[r]), jnp.asarray(idx[r]), sub, s2_sub, x_sub)
+                          )[: x.shape[0]]
+
+    chains = run_lockstep(evaluate, x_base[sel][:, free_l], covs[sel], **kw)
+    for k, chain in zip(sel, chains, strict=True):
+        i = rows[k]
+        out["method"][i] = "emcee"
+        if isinstance(chain, BaseException):
+            out["reason"][i] = f"emcee failed: {chain}"
+            out["converged"][i] = False
+            _nan_row(model, i, out)
+            continue
+        full = np.broadcast_to(x_base[k], (*chain.samples.shape[:2], model.n_params)).copy()
+        full[..., free_l] = chain.samples
+        chain.samples = from_sampling(model, full)
+        tau = np.full(model.n_params, np.nan)  # fixed parameters: no chain statistics
+        tau[free_l] = chain.tau
+        chain.tau = tau
+        out["chains"][i] = chain
+        out["converged"][i] = chain.converged
+        out["acceptance"][i] = chain.acceptance
+        out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _emcee_summary(
+            model, chain)
+        if not chain.converged:
+            out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps (max tau "
+                                 f"{np.nanmax(tau):.1f}, acceptance {chain.acceptance:.2f})")
