@@ -53,7 +53,7 @@ from frictionfit.uncertainty.laplace import laplace, profile_disagreement
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
 __all__ = ["AUTO_MAX_COND", "AUTO_MAX_PROFILE_DEV", "METHODS", "SamplerSettings", "TrialGroup",
-           "sample_posterior"]
+           "sample_posterior", "store_chain"]
 
 METHODS = ("laplace", "emcee", "auto")
 #: ``auto``: condition number of the unit-diagonal Hessian above which emcee is used.
@@ -400,6 +400,12 @@ def _store_emcee(model, i: int, chain, out: dict) -> None:
         out["reason"][i] = f"emcee failed: {chain}"
         return
     chain.samples = from_sampling(model, chain.samples)
+    store_chain(model, i, chain, out)
+
+
+def store_chain(model, i: int, chain, out: dict) -> None:
+    """Row ``i``'s chain (samples in physical units) and its summary into ``out``; a chain
+    that did not converge says so in the row's reason."""
     out["chains"][i] = chain
     out["converged"][i] = chain.converged
     out["acceptance"][i] = chain.acceptance
@@ -407,7 +413,7 @@ def _store_emcee(model, i: int, chain, out: dict) -> None:
         model, chain)
     if not chain.converged:
         out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps "
-                             f"(max tau {np.max(chain.tau):.1f}, acceptance "
+                             f"(max tau {np.nanmax(chain.tau):.1f}, acceptance "
                              f"{chain.acceptance:.2f})")
 
 

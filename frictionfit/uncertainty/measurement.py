@@ -45,7 +45,7 @@ from frictionfit.fit.measurement import MeasurementData, _residual_fn, _stack
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import from_sampling, sampling_bounds, to_sampling
-from frictionfit.uncertainty.engine import METHODS, _auto_reason, _emcee_summary
+from frictionfit.uncertainty.engine import METHODS, _auto_reason, _emcee_summary, store_chain
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
 __all__ = ["measurement_posterior"]
@@ -298,11 +298,4 @@ def _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, kw: dict) -
         tau = np.full(model.n_params, np.nan)  # fixed parameters: no chain statistics
         tau[free_l] = chain.tau
         chain.tau = tau
-        out["chains"][i] = chain
-        out["converged"][i] = chain.converged
-        out["acceptance"][i] = chain.acceptance
-        out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _emcee_summary(
-            model, chain)
-        if not chain.converged:
-            out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps (max tau "
-                                 f"{np.nanmax(tau):.1f}, acceptance {chain.acceptance:.2f})")
+        store_chain(model, i, chain, out)
