@@ -56,6 +56,13 @@ def test_laplace_draws_have_the_fits_stderr(fitted, laplace):
             assert q[0] < q[1] < res.values[i][name] < q[3] < q[4]
 
 
+def test_laplace_is_the_default(fitted, laplace):
+    items, res = fitted
+    default = measurement_posterior(res, items, seed=1)
+    assert default.method == ["laplace", "laplace"]
+    np.testing.assert_array_equal(default.quantiles[0]["k"], laplace.quantiles[0]["k"])
+
+
 def test_laplace_is_deterministic_given_the_seed(fitted, laplace):
     items, res = fitted
     again = measurement_posterior(res, items, method="laplace", seed=1)

@@ -133,7 +133,7 @@ def _laplace_summary(model: MeasurementModel, draws: np.ndarray):
 
 
 def measurement_posterior(
-    fit: FitResult, items: Sequence[MeasurementData], *, method: str = "auto",
+    fit: FitResult, items: Sequence[MeasurementData], *, method: str = "laplace",
     n_draws: int = 4000, nwalkers: int | None = None, max_steps: int = 2000,
     check_every: int = 25, min_tau_multiple: float = 50.0, pilot_steps: int = 30,
     seed: int = 0,
@@ -147,8 +147,11 @@ def measurement_posterior(
     items : sequence of MeasurementData
         The items fitted, in the fit's row order (their command times are taken from the
         fit, which carries each movement's own latency).
-    method : {"auto", "laplace", "emcee"}
-        See the module docstring.
+    method : {"laplace", "auto", "emcee"}
+        See the module docstring. Laplace by default: on simulated measurements its 95 %
+        intervals hold the truth at about the nominal rate, while emcee takes tens of
+        seconds per recording and mixes slowly where a relaxation branch sits at its bound
+        (which ``"auto"`` sends to it).
     n_draws : int
         Laplace draws per row.
     nwalkers : int, optional
