@@ -7,7 +7,7 @@ import pytest
 
 from frictionfit.bench.fit import numpy_predict, run
 from frictionfit.bench.measurement import numpy_residual
-from frictionfit.fit.measurement import _residual_fn, _stack, measurement_data
+from frictionfit.fit.measurement import measurement_data, residual_fn, stack_items
 from frictionfit.models import FAMILY, PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.simulation.measurements import simulate_measurements
@@ -57,14 +57,14 @@ def measurement():
 @pytest.mark.parametrize("law", ["relaxation2", "no_peak2"])
 def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
     model = MeasurementModel(law)
-    residual = _residual_fn(model, tuple(range(model.n_params)))
+    residual = residual_fn(model, tuple(range(model.n_params)))
     residual = jax.jit(residual)
     start = to_unconstrained(model, measurement.guess)
     # Points near the guess, not the guess itself: at its round values (accel 0.1) the JAX
     # drive can end a movement one ulp back, a reversal that resets the law's slip, and
     # NumPy rounds the parameters' exp/tanh differently from XLA (there: a few 1e-9 relative).
     for u in start + 0.3 * np.random.default_rng(0).standard_normal((3, start.size)):
-        data = tuple(jnp.asarray(a[0]) for a in _stack([measurement], u[None]))
+        data = tuple(jnp.asarray(a[0]) for a in stack_items([measurement], u[None]))
         ref = np.asarray(residual(jnp.asarray(u), data))
         twin = numpy_residual(model, u, measurement)
         np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))

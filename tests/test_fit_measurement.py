@@ -14,9 +14,9 @@ from frictionfit.fit.measurement import (
     _at_optimum,
     _faster_branch_first,
     _ridges_checked,
-    _stack,
     fit_measurements,
     measurement_data,
+    stack_items,
 )
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
@@ -89,7 +89,7 @@ def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gau
     res = fit_measurements(items, model=model, progress=False)
     free = tuple(range(len(model.param_names)))
     u = np.stack(res.u)
-    data = _stack(items, u)
+    data = stack_items(items, u)
     _, jtj = _at_optimum(model, free, u, data)
     names = list(model.param_names)
     stats = {"flags": [{n: "trades off with k" for n in names if n != "k"} | {"k": "at bound"}],

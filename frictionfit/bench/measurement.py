@@ -102,13 +102,13 @@ def _against_peers(items: list, n_numpy: int) -> dict:
     import jax
     from scipy.optimize import least_squares
 
-    from frictionfit.fit.measurement import _residual_fn, _stack
+    from frictionfit.fit.measurement import residual_fn, stack_items
     from frictionfit.models.measurement import to_unconstrained
 
     model = MeasurementModel("relaxation2")
     u0 = np.stack([to_unconstrained(model, d.guess) for d in items])
-    data = _stack(items, u0)
-    residual = _residual_fn(model, tuple(range(model.n_params)))
+    data = stack_items(items, u0)
+    residual = residual_fn(model, tuple(range(model.n_params)))
     fun = jax.jit(residual)
     jac = jax.jit(jax.jacfwd(residual))
 

@@ -41,7 +41,8 @@ from frictionfit.models.measurement import RIG, to_unconstrained
 from frictionfit.recording import Recording
 from frictionfit.segmentation import moving_average, regrid, suspect_samples
 
-__all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data"]
+__all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data", "residual_fn",
+           "stack_items"]
 
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
@@ -169,7 +170,7 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
 
 
 @lru_cache(maxsize=16)
-def _residual_fn(model: MeasurementModel, free: tuple[int, ...]):
+def residual_fn(model: MeasurementModel, free: tuple[int, ...]):
     """``residual(u_free, data)`` over the ``free`` parameters (the others from the data's
     ``base`` vector): masked residuals, then the priors scaled by the recording's noise sd
     (so the least-squares optimum is the MAP estimate)."""
@@ -184,7 +185,7 @@ def _residual_fn(model: MeasurementModel, free: tuple[int, ...]):
     return residual
 
 
-def _stack(items: Sequence[MeasurementData], base: np.ndarray):
+def stack_items(items: Sequence[MeasurementData], base: np.ndarray):
     """The batch as padded arrays (the solver's per-trial data pytree): past its end an
     item's grid goes on in 1-ms steps with weight 0."""
     n = max(d.y.size for d in items)
@@ -437,8 +438,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         j = model.param_names.index(name)
         base[:, j] = PARAMS[name].to_unconstrained(np.broadcast_to(value, (len(items),)))
     free = tuple(j for j, n in enumerate(model.param_names) if n not in fix)
-    data = _stack(items, base)
-    residual = _residual_fn(model, free)
+    data = stack_items(items, base)
+    residual = residual_fn(model, free)
     # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
     solver = BatchedLevenbergMarquardt(**{field[k]: v for k, v in (tolerances or {}).items()})
@@ -494,7 +495,7 @@ PROFILE_MIN_DROP = 1.0
 def _cost_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(points, data) -> sum of squared residuals`` (priors included) at each of
     ``points`` (m, p_free) of one item."""
-    residual = _residual_fn(model, free)
+    residual = residual_fn(model, free)
     return jax.jit(lambda points, data: jax.vmap(
         lambda w: jnp.sum(residual(w, data) ** 2))(points))
 
@@ -570,7 +571,7 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=16)
 def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data) -> (data residuals, J^T J with the prior rows)`` of one item."""
-    residual = _residual_fn(model, free)
+    residual = residual_fn(model, free)
 
     def one(u_free, data):
         jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u_free)

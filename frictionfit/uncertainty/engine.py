@@ -53,7 +53,7 @@ from frictionfit.uncertainty.laplace import laplace, profile_disagreement
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
 __all__ = ["AUTO_MAX_COND", "AUTO_MAX_PROFILE_DEV", "METHODS", "SamplerSettings", "TrialGroup",
-           "sample_posterior", "store_chain"]
+           "auto_reason", "emcee_summary", "sample_posterior", "store_chain"]
 
 METHODS = ("laplace", "emcee", "auto")
 #: ``auto``: condition number of the unit-diagonal Hessian above which emcee is used.
@@ -103,7 +103,7 @@ def _directions(model, trials: Trials, u) -> np.ndarray:
     return np.where(chi2[0] <= chi2[1], 1.0, -1.0)
 
 
-def _auto_reason(fit: FitResult, i: int, cond: float, dev: float) -> str:
+def auto_reason(fit: FitResult, i: int, cond: float, dev: float) -> str:
     """Why trial ``i`` needs emcee under the ``auto`` policy ("" when Laplace is fine)."""
     if fit.status[i] != Status.CONVERGED:
         return f"fit status {Status(int(fit.status[i])).name.lower()}"
@@ -132,7 +132,7 @@ def _laplace_summary(model, mode, cov):
     return quant, sd
 
 
-def _emcee_summary(model, chain: ChainResult):
+def emcee_summary(model, chain: ChainResult):
     flat = chain.samples.reshape(-1, chain.samples.shape[-1])
     ess = chain.ess()
     quant, sd, tau, ess_d = {}, {}, {}, {}
@@ -337,7 +337,7 @@ def _sample_group(fit: FitResult, group: TrialGroup, how: SamplerSettings, out: 
     finite = np.all(np.isfinite(cov), axis=(1, 2))
     if how.method == "auto":
         dev = profile_disagreement(model, data, mode, cov)
-        reasons = [_auto_reason(fit, i, cond[k], dev[k]) for k, i in enumerate(rows)]
+        reasons = [auto_reason(fit, i, cond[k], dev[k]) for k, i in enumerate(rows)]
     else:
         reasons = [how.method] * rows.size
     use_emcee = np.array([how.method == "emcee" or (how.method == "auto" and bool(r))
@@ -409,7 +409,7 @@ def store_chain(model, i: int, chain, out: dict) -> None:
     out["chains"][i] = chain
     out["converged"][i] = chain.converged
     out["acceptance"][i] = chain.acceptance
-    out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _emcee_summary(
+    out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = emcee_summary(
         model, chain)
     if not chain.converged:
         out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps "

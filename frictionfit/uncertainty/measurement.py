@@ -41,11 +41,11 @@ from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import fd_slope, pad_rows
-from frictionfit.fit.measurement import MeasurementData, _residual_fn, _stack
+from frictionfit.fit.measurement import MeasurementData, residual_fn, stack_items
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import from_sampling, sampling_bounds, to_sampling
-from frictionfit.uncertainty.engine import METHODS, _auto_reason, _emcee_summary, store_chain
+from frictionfit.uncertainty.engine import METHODS, auto_reason, emcee_summary, store_chain
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
 __all__ = ["measurement_posterior"]
@@ -57,7 +57,7 @@ def _log_density(model: MeasurementModel, free: tuple[int, ...]):
     """``f(u_free, i, data, s2)``: the log density at the free parameters ``u_free`` (the
     fit's unconstrained coordinates) of item ``i`` of the stacked ``data``; ``s2`` (per
     item) the variance of a weighted block residual (N^2)."""
-    residual = _residual_fn(model, free)
+    residual = residual_fn(model, free)
 
     def one(u_free, i, data, s2):
         r = residual(u_free, jax.tree_util.tree_map(lambda a: a[i], data))
@@ -93,7 +93,7 @@ def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
                     data: tuple, redchi: np.ndarray) -> np.ndarray:
     """Per item, the variance of a weighted block residual the fit's covariance implies
     (N^2): ``redchi (1 + rho) / (1 - rho)``, ``rho`` the residuals' lag-1 coefficient."""
-    residual = jax.jit(jax.vmap(_residual_fn(model, free)))
+    residual = jax.jit(jax.vmap(residual_fn(model, free)))
     n = data[0].shape[1]
     resid = np.asarray(residual(jnp.asarray(u_free), data))[:, :n]
     rho = np.clip(lag1_rho(resid, data[1] > 0), *RHO_POSTERIOR)
@@ -127,7 +127,7 @@ def _laplace_summary(model: MeasurementModel, draws: np.ndarray):
     """Quantiles and sd (physical) of full unconstrained ``draws (n, p)``; tau and ESS NaN
     (independent draws)."""
     nan = np.full(model.n_params, np.nan)
-    quant, sd, tau, ess = _emcee_summary(
+    quant, sd, tau, ess = emcee_summary(
         model, ChainResult(draws[:, None, :], nan, len(draws), 0, 1, np.nan, False))
     return quant, sd, dict.fromkeys(tau, np.nan), dict.fromkeys(ess, np.nan)
 
@@ -237,11 +237,11 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
     if method != "laplace":  # the density is needed
         sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0])) for i in rows]
-        data = tuple(jnp.asarray(a) for a in _stack(sub, u_hat))
+        data = tuple(jnp.asarray(a) for a in stack_items(sub, u_hat))
         s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
     if method == "auto":
         dev = _profile_disagreement(model, free, data, s2, mode, cov)
-        reasons = [_auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
+        reasons = [auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
     else:
         reasons = [method] * rows.size
     use_emcee = np.array([method == "emcee" or bool(r) for r in reasons]) & (method != "laplace")
