@@ -41,8 +41,8 @@ from frictionfit.models.measurement import RIG, to_unconstrained
 from frictionfit.recording import Recording
 from frictionfit.segmentation import moving_average, regrid, suspect_samples
 
-__all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data", "residual_fn",
-           "stack_items"]
+__all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
+           "profile_drops", "residual_fn", "stack_items"]
 
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
@@ -500,33 +500,44 @@ def _cost_fn(model: MeasurementModel, free: tuple[int, ...]):
         lambda w: jnp.sum(residual(w, data) ** 2))(points))
 
 
+def profile_drops(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
+                  cov: np.ndarray, data, s2: np.ndarray, rows) -> np.ndarray:
+    """Per item of ``rows``, ``(len(rows), 2, q)``: the fall of the log-density
+    ``-|residual|^2 / (2 s2)`` from ``u_free`` to 2 sd out on the + and - side of each free
+    parameter's Gaussian profile line (its column of ``cov``, finite); a Gaussian falls by
+    exactly 2. ``data``: the stacked items (:func:`stack_items`); ``s2``: per item, the
+    variance scale of ``cov``. NaN where the residual is not finite."""
+    cost = _cost_fn(model, free)
+    q = len(free)
+    out = np.full((len(rows), 2, q), np.nan)
+    for k, i in enumerate(rows):
+        line = (cov[i] / np.sqrt(np.maximum(np.diag(cov[i]), 1e-300))).T  # row j: j's line
+        points = np.concatenate([u_free[i][None], u_free[i] + 2 * line, u_free[i] - 2 * line])
+        c = np.asarray(cost(points, jax.tree_util.tree_map(lambda a, i=i: a[i], data)))
+        out[k] = ((c[1:] - c[0]) / (2 * s2[i])).reshape(2, q)
+    return out
+
+
 def _ridges_checked(model: MeasurementModel, free: tuple[int, ...], u: np.ndarray,
                     stats: dict, data, s2: np.ndarray) -> None:
     """Lift (in place) each "trades off with" flag whose parameter's log-posterior falls by
-    at least :data:`PROFILE_MIN_DROP` 2 sd out on both sides of its profile line: the
-    posterior is then no wider there than the Gaussian (it is often narrower: the drops
-    grow faster than the square along a curved ridge), and the standard error is an
-    interval that does not overstate what the data say. Along a flat or one-sided ridge (a
-    relaxation time far beyond the recording) the drop stays small and the flag stays.
-    ``s2``: per item, the variance scale of ``cov`` (the reduced chi-square times the
-    AR(1) inflation)."""
+    at least :data:`PROFILE_MIN_DROP` 2 sd out on both sides of its profile line
+    (:func:`profile_drops`): the posterior is then no wider there than the Gaussian (it is
+    often narrower: the drops grow faster than the square along a curved ridge), and the
+    standard error is an interval that does not overstate what the data say. Along a flat
+    or one-sided ridge (a relaxation time far beyond the recording) the drop stays small
+    and the flag stays. ``s2``: per item, the variance scale of ``cov`` (the reduced
+    chi-square times the AR(1) inflation)."""
     names = [model.param_names[j] for j in free]
-    cost = _cost_fn(model, free)
-    for i, flags in enumerate(stats["flags"]):
-        cols = [k for k, n in enumerate(names) if flags.get(n, "").startswith("trades off")]
-        cov = stats["cov"][i]
-        if not cols or not np.all(np.isfinite(cov)):
-            continue
-        line = (cov[:, cols] / np.sqrt(np.diag(cov)[cols])).T  # (c, p): the profile lines
-        at = u[i][list(free)]
-        points = np.zeros((1 + 2 * len(names), len(names)))  # one shape per model: one compile
-        points[:] = at
-        points[1:1 + 2 * len(cols)] += np.concatenate([2 * line, -2 * line])
-        c = np.asarray(cost(points, jax.tree_util.tree_map(lambda a, i=i: a[i], data)))
-        drop = (c[1:1 + 2 * len(cols)] - c[0]) / (2 * s2[i])
-        for k, d in zip(cols, drop.reshape(2, len(cols)).min(axis=0), strict=True):
-            if d >= PROFILE_MIN_DROP:
-                del flags[names[k]]
+    rows = [i for i, flags in enumerate(stats["flags"])
+            if any(flags.get(n, "").startswith("trades off") for n in names)
+            and np.all(np.isfinite(stats["cov"][i]))]
+    drops = profile_drops(model, free, u[:, list(free)], stats["cov"], data, s2, rows)
+    for i, drop in zip(rows, drops.min(axis=1), strict=True):
+        flags = stats["flags"][i]
+        for name, d in zip(names, drop, strict=True):
+            if flags.get(name, "").startswith("trades off") and d >= PROFILE_MIN_DROP:
+                del flags[name]
         flag_gated(flags, stats["values"][i], stats["stderr"][i])
 
 

@@ -41,7 +41,12 @@ from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import fd_slope, pad_rows
-from frictionfit.fit.measurement import MeasurementData, residual_fn, stack_items
+from frictionfit.fit.measurement import (
+    MeasurementData,
+    profile_drops,
+    residual_fn,
+    stack_items,
+)
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import from_sampling, sampling_bounds, to_sampling
@@ -68,14 +73,8 @@ def _log_density(model: MeasurementModel, free: tuple[int, ...]):
 
 
 @lru_cache(maxsize=16)
-def _density_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """Jitted :func:`_log_density` over rows: ``f(U (R, q), idx (R,), data, s2) -> (R,)``."""
-    return jax.jit(jax.vmap(_log_density(model, free), in_axes=(0, 0, None, None)))
-
-
-@lru_cache(maxsize=16)
 def _sampling_density_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """:func:`_density_fn` in sampling coordinates of the free parameters, flat on their
+    """:func:`_log_density` over rows, in sampling coordinates of the free parameters, flat on their
     bounds there (-inf outside): ``f(X (R, q), idx, data, s2, x_base (n, p))``."""
     density = _log_density(model, free)
     lo, hi = (b[list(free)] for b in sampling_bounds(model))
@@ -103,16 +102,11 @@ def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
 def _profile_disagreement(model, free, data, s2, mode: np.ndarray, cov: np.ndarray
                           ) -> np.ndarray:
     """Per item, max over free parameters and sides of ``|drop - 2|`` of the log density
-    2 sd out along the parameter's Gaussian profile line (0 for an exact Gaussian)."""
-    n, q = mode.shape
-    sd = np.sqrt(np.maximum(np.einsum("tii->ti", cov), 1e-300))
-    line = cov / sd[:, None, :]
-    pts = (mode[:, None, :] + np.concatenate([2 * line, -2 * line], axis=2).transpose(0, 2, 1))
-    density = _density_fn(model, free)
-    at_mode = np.asarray(density(jnp.asarray(mode), jnp.arange(n), data, s2))
-    around = np.asarray(density(jnp.asarray(pts.reshape(-1, q)), jnp.repeat(jnp.arange(n), 2 * q),
-                                data, s2)).reshape(n, 2 * q)
-    return np.max(np.abs(at_mode[:, None] - around - 2.0), axis=1)
+    2 sd out along the parameter's Gaussian profile line (0 for an exact Gaussian; inf where
+    the density is not finite there)."""
+    dev = np.abs(profile_drops(model, free, mode, cov, data, np.asarray(s2),
+                               range(mode.shape[0])) - 2.0)
+    return np.max(np.where(np.isnan(dev), np.inf, dev), axis=(1, 2))
 
 
 def _laplace_draws(mode: np.ndarray, cov: np.ndarray, n_draws: int,
