@@ -69,7 +69,9 @@ def test_relabelled_branches_predict_the_same_force():
     model = MeasurementModel("relaxation2")
     u = to_unconstrained(model, {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3,
                                  "relax_frac": 0.2, "tau": 1.2, "relax_frac2": 0.5, "tau2": 0.1})
-    swapped = _faster_branch_first(model, u[None])[0]
+    swapped, relabelled = _faster_branch_first(model, u[None])
+    swapped = swapped[0]
+    assert relabelled.tolist() == [True]
     v = model.physical(swapped)
     assert v["tau"] < v["tau2"]
     t = jnp.arange(4000) / 1000.0
@@ -90,7 +92,8 @@ def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gau
     free = tuple(range(len(model.param_names)))
     u = np.stack(res.u)
     data = stack_items(items, u)
-    _, jtj = _at_optimum(model, free, u, data)
+    _, jtj = _at_optimum(model, free, u, data, np.full((1, len(free), len(free)), np.nan),
+                         np.ones(1, bool))  # computed at u
     names = list(model.param_names)
     stats = {"flags": [{n: "trades off with k" for n in names if n != "k"} | {"k": "at bound"}],
              "cov": scale * np.linalg.pinv(jtj), "values": res.values, "stderr": res.stderr}

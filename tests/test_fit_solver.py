@@ -38,6 +38,28 @@ def test_one_trial_through_optimistix_equals_the_pooled_fit():
         np.testing.assert_allclose(np.asarray(sol.value), pooled[i], rtol=1e-8, atol=1e-12)
 
 
+def test_the_pool_returns_the_normal_matrix_at_each_solution():
+    """``solver_stats``: the solver's ``J^T J`` at each pooled solution is the Jacobian's
+    there (so nothing computes it again), also for a problem refilled into a slot."""
+    import jax
+
+    model = get_model("relaxation")
+    ts = simulate_trials("relaxation", 3, seed=2)
+    n = ts.y.shape[0]
+    u0 = np.asarray(initial_guess(model, ts.t, ts.y, ts.t_out, ts.t_back, np.ones(n)))
+    free = tuple(range(model.n_params))
+    data = Problem.of(Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back), direction=1.0), u0)
+    residual = residual_fn(model, free)
+    u, status, _, stats = solve_pooled(BatchedLevenbergMarquardt(), residual, u0, data,
+                                       pool_size=2, max_steps=200, solver_stats=True)
+    assert stats["jtj"].shape == (n, len(free), len(free))
+    for i in range(n):
+        row = jax.tree_util.tree_map(jnp.asarray, _row(data, i))
+        jac = np.asarray(jax.jacfwd(residual)(jnp.asarray(u[i]), row))
+        np.testing.assert_allclose(stats["jtj"][i], jac.T @ jac, rtol=1e-9,
+                                   atol=1e-9 * np.abs(jac.T @ jac).max())
+
+
 def _row(data, i):
     import jax
 

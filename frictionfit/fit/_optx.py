@@ -80,7 +80,7 @@ def _where_slots(keep, old, new):
 @lru_cache(maxsize=32)
 def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: str):
     """Jitted ``start(arrays, live, y0, args) -> slots`` and ``run(arrays, slots, fresh,
-    live, y0, args) -> (slots, code, value)``: re-``init`` the ``fresh`` slots
+    live, y0, args) -> (slots, code, value, stats)``: re-``init`` the ``fresh`` slots
     (``live``: holding a problem), then up to ``segment`` steps. ``arrays`` is the
     array part of the solver, ``static_solver`` the rest (the cache key)."""
     options, tags = {"jac": jac}, frozenset()
@@ -105,8 +105,9 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
         result = optx.RESULTS.where(slot.stop, slot.result,
                                     optx.RESULTS.nonlinear_max_steps_reached)
         code = jnp.where(slot.stop | (slot.steps >= max_steps), _status(result), RUNNING)
-        return code, solver.postprocess(fn_aux, slot.y, None, args, options, state, tags,
-                                        result)[0]
+        value, _, stats = solver.postprocess(fn_aux, slot.y, None, args, options, state, tags,
+                                             result)
+        return code, value, eqx.filter(stats, eqx.is_array)
 
     def start(solver, live, y0, args):
         state, stop, result = eqx.filter_vmap(lambda y, a: init(solver, y, a))(y0, args)
@@ -132,9 +133,9 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
 
         _, slots = jax.lax.while_loop(lambda c: (c[0] < segment) & jnp.any(running(c[1])),
                                       body, (0, slots))
-        code, value = eqx.filter_vmap(lambda *a: finish(solver, *a))(
+        code, value, stats = eqx.filter_vmap(lambda *a: finish(solver, *a))(
             slots, eqx.combine(slots.state, static), args)
-        return slots, code, value
+        return slots, code, value, stats
 
     return (jax.jit(lambda arrays, *a: start(eqx.combine(arrays, static_solver), *a)[0]),
             jax.jit(run))
@@ -142,12 +143,16 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
 
 def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.ndarray, args,
                  *, pool_size: int, max_steps: int, segment: int = 4, threads: int = 1,
-                 jac: str = "fwd", progress: Callable[[int], object] | None = None):
+                 jac: str = "fwd", progress: Callable[[int], object] | None = None,
+                 solver_stats: bool = False):
     """Solve every problem (rows of ``y0`` and of each ``args`` leaf) with ``solver``.
 
     ``fn(y, args) -> residuals`` for one problem. Returns ``(y, status, steps)`` as
     NumPy arrays: the solution (the start where it is not finite), a
-    :class:`~frictionfit.errors.Status` code and the steps taken, per problem.
+    :class:`~frictionfit.errors.Status` code and the steps taken, per problem; with
+    ``solver_stats``, also the array statistics of the solver's ``postprocess`` at the
+    solution, name -> one row per problem (e.g. ``J^T J`` of
+    :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`: no second Jacobian).
     ``pool_size`` slots; ``segment`` steps per compiled call; ``threads`` host
     threads, a pool each (:func:`in_threads`; the split does not change results);
     ``progress(k)`` is called as ``k`` more problems finish.
@@ -156,9 +161,10 @@ def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.n
         raise FitError(f"{type(solver).__name__} is not an optimistix least-squares solver")
     arrays, static = eqx.partition(solver, eqx.is_array)
     fns = _segment_fn(static, fn, segment, max_steps, jac)
-    return in_threads(lambda share, device: _solve_serial(
+    out = in_threads(lambda share, device: _solve_serial(
         fns, arrays, y0[share], jax.tree_util.tree_map(lambda a: a[share], args), pool_size, device,
         progress), y0.shape[0], pool_size, threads)
+    return out if solver_stats else out[:3]
 
 
 def pool_sizes(pool_size: int) -> list[int]:
@@ -188,7 +194,7 @@ def in_threads(solve_share: Callable, n: int, pool_size: int, threads: int):
     with ThreadPoolExecutor(max_workers=threads) as ex:
         parts = list(ex.map(lambda i: solve_share(shares[i], devices[i % len(devices)]),
                             range(threads)))
-    return tuple(np.concatenate([part[k] for part in parts]) for k in range(len(parts[0])))
+    return jax.tree_util.tree_map(lambda *leaves: np.concatenate(leaves), *parts)
 
 
 def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, progress):
@@ -196,6 +202,7 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
     start, run = fns
     n = y0.shape[0]
     y_out, code_out, steps_out = y0.copy(), np.full(n, int(Status.MAX_STEPS)), np.zeros(n, int)
+    stats_out = None  # name -> (n, ...) once the first call shows the shapes
     sizes = pool_sizes(pool_size)
     b = sizes[0]
     slot_y0 = np.repeat(y0[:1], b, axis=0)
@@ -211,7 +218,7 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
             leaf[rows] = whole[trials]
         busy = np.flatnonzero(owner >= 0)
         if busy.size == 0:
-            return y_out, code_out, steps_out
+            return y_out, code_out, steps_out, stats_out or {}
         smaller = [s for s in sizes if s >= busy.size]
         if queue == n and smaller[-1] < b:  # only a tail is left: shrink the pool
             b = smaller[-1]
@@ -223,7 +230,7 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
                                                                   slot_args)), device)
         if slots is None:  # the first call: every slot starts here
             slots, fresh[:] = start(arrays, *inputs), False
-        slots, code, value = run(arrays, slots, fresh, *inputs)
+        slots, code, value, stats = run(arrays, slots, fresh, *inputs)
         code = np.asarray(code)  # waits for the call: only now may its inputs change
         fresh[:] = False
         done = np.flatnonzero((owner >= 0) & (code != RUNNING))
@@ -232,6 +239,10 @@ def _solve_serial(fns, arrays, y0: np.ndarray, args, pool_size: int, device, pro
         y_out[trials] = np.where(np.all(np.isfinite(value), axis=1, keepdims=True),
                                  value, y0[trials])
         code_out[trials], steps_out[trials] = code[done], np.asarray(slots.steps)[done]
+        if stats_out is None:
+            stats_out = {k: np.full((n, *np.shape(v)[1:]), np.nan) for k, v in stats.items()}
+        for k, v in stats.items():
+            stats_out[k][trials] = np.asarray(v)[done]
         owner[done] = -1
         if progress is not None and done.size:
             progress(int(done.size))

@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import scaled_condition
+from frictionfit.fit._numerics import pad_rows, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import choose, flag_gated, statistics, status_of
@@ -447,14 +447,15 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
-        u_free, code, steps = solve_pooled(solver, residual, base[:, free], data,
-                                           pool_size=pool_size, max_steps=max_steps,
-                                           threads=threads, progress=bar.update)
+        u_free, code, steps, at_solution = solve_pooled(
+            solver, residual, base[:, free], data, pool_size=pool_size, max_steps=max_steps,
+            threads=threads, progress=bar.update, solver_stats=True)
     u = base.copy()
     u[:, free] = u_free
+    relabelled = np.zeros(len(items), bool)
     if not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix):
-        u = _faster_branch_first(model, u)
-    resid, jtj = _at_optimum(model, free, u[:, free], data)
+        u, relabelled = _faster_branch_first(model, u)
+    resid, jtj = _at_optimum(model, free, u[:, free], data, at_solution["jtj"], relabelled)
     weight = data[1]
     mask = weight > 0
     # AR(1) residuals carry fewer independent points than blocks: the covariance grows by
@@ -561,12 +562,14 @@ def _prior_dict(model: MeasurementModel) -> dict | None:
     return None if model.priors is None else dict(model.prior_table)
 
 
-def _faster_branch_first(model: MeasurementModel, u: np.ndarray) -> np.ndarray:
+def _faster_branch_first(model: MeasurementModel, u: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """Relabel the two Maxwell branches where ``tau > tau2`` (the same force: branch weights
-    ``relax_frac`` and ``relax_frac2 (1 - relax_frac)`` swapped), so ``tau`` is the faster."""
+    ``relax_frac`` and ``relax_frac2 (1 - relax_frac)`` swapped), so ``tau`` is the faster;
+    and which rows were relabelled."""
     names = model.param_names
     if "tau2" not in names:
-        return u
+        return u, np.zeros(u.shape[0], bool)
     v = model.physical(u)
     swap = v["tau"] > v["tau2"]
     w1, w2 = v["relax_frac"], v["relax_frac2"] * (1.0 - v["relax_frac"])
@@ -576,26 +579,50 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray) -> np.ndarray:
     for name, value in new.items():
         j = names.index(name)
         u[swap, j] = PARAMS[name].to_unconstrained(value[swap])
-    return u
+    return u, np.asarray(swap)
 
 
 @lru_cache(maxsize=16)
 def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """Jitted ``(u_free, data) -> (data residuals, J^T J with the prior rows)`` of one item."""
+    """Jitted ``(u_free, data) -> J^T J`` (with the prior rows) of one item."""
     residual = residual_fn(model, free)
 
     def one(u_free, data):
-        jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u_free)
-        return r[: data[0].shape[-1]], jac.T @ jac
+        jac = jax.jacfwd(residual)(u_free, data)
+        return jac.T @ jac
 
     return jax.jit(one)
 
 
-def _at_optimum(model: MeasurementModel, free: tuple[int, ...], u_free, data):
-    """Data residuals and ``J^T J`` at ``u_free``, one item at a time."""
-    fn = _jacobian_fn(model, free)
-    out = [fn(u_free[i], jax.tree_util.tree_map(lambda a, i=i: a[i], data))
-           for i in range(u_free.shape[0])]
-    return np.stack([np.asarray(r) for r, _ in out]), np.stack([np.asarray(a) for _, a in out])
+@lru_cache(maxsize=16)
+def _residuals_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted, vmapped ``(u_free, data) -> data residuals`` of a chunk of items."""
+    residual = residual_fn(model, free)
+    return jax.jit(jax.vmap(lambda w, data: residual(w, data)[: data[0].shape[-1]]))
+
+
+#: Items per call where the residuals at the solutions are evaluated.
+RESIDUAL_CHUNK = 16
+
+
+def _at_optimum(model: MeasurementModel, free: tuple[int, ...], u_free, data,
+                jtj: np.ndarray, again: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Data residuals and ``J^T J`` at ``u_free``: ``J^T J`` as the solver left it at its
+    solution, computed again only for the rows in ``again`` (relabelled after the fit) or
+    where it is not finite; the residuals in chunks of :data:`RESIDUAL_CHUNK` items."""
+    fn = _residuals_fn(model, free)
+    n = u_free.shape[0]
+    resid = []
+    for start in range(0, n, RESIDUAL_CHUNK):
+        idx = np.arange(start, min(start + RESIDUAL_CHUNK, n))
+        rows = pad_rows(idx, RESIDUAL_CHUNK)
+        r = fn(u_free[rows], jax.tree_util.tree_map(lambda a, r=rows: a[r], data))
+        resid.append(np.asarray(r)[: idx.size])
+    resid = np.concatenate(resid) if resid else np.zeros((0, data[0].shape[-1]))
+    jtj = np.array(jtj, dtype=np.float64)
+    one = _jacobian_fn(model, free)
+    for i in np.flatnonzero(again | ~np.all(np.isfinite(jtj), axis=(1, 2))):
+        jtj[i] = np.asarray(one(u_free[i], jax.tree_util.tree_map(lambda a, i=i: a[i], data)))
+    return resid, jtj
 
 

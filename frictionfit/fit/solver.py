@@ -7,8 +7,9 @@ least-squares solver, in refilled pools of slots (:mod:`frictionfit.fit._optx`).
 
 Each step costs one forward-mode Jacobian (``jax.jacfwd``: few parameters, thousands
 of residuals), from which only the ``p x p`` normal matrix ``J^T J`` and gradient
-``J^T r`` are kept; the damped normal equations, with Marquardt scaling (running max
-of ``diag(J^T J)``, as in MINPACK), are solved with ``lineax.Cholesky``.
+``J^T r`` are kept (``J^T J`` at the solution is in ``stats["jtj"]``); the damped
+normal equations, with Marquardt scaling (running max of ``diag(J^T J)``, as in
+MINPACK), are solved with ``lineax.Cholesky``.
 
 Damping (Nielsen's rule): an accepted step scales ``lambda`` by
 ``max(1/3, 1 - (2 g - 1)^3)``, ``g`` the gain ratio of actual to predicted cost
@@ -178,4 +179,4 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     def postprocess(self, fn, y, aux, args, options, state, tags, result
                     ) -> tuple[Any, Any, dict[str, Any]]:
         s, _ = state
-        return s.u, aux, {"steps": s.steps}
+        return s.u, aux, {"steps": s.steps, "jtj": s.jtj}
