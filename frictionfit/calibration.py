@@ -14,8 +14,8 @@ fewer days than the final one, and its probabilities come out too flat. With
 ``n_draws > 0`` and a feature set that can draw its rows (``transform_draws``: a
 bootstrap over a recording's motions, values that could not be measured drawn from the
 training values), the classifier's probabilities are averaged over the draws before
-calibration, at training and prediction alike: a
-damaged recording, or one whose motions disagree, gets a flatter distribution.
+calibration, at training and prediction alike: a damaged recording, or one whose
+motions disagree, gets a flatter distribution.
 
 The scores of the calibration are in :func:`expected_calibration_error`,
 :func:`reliability_table` and :func:`coverage_curve`; :func:`plot_reliability` draws
