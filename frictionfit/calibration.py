@@ -5,13 +5,17 @@ recording's uncertainty.
 classifier``). Its probabilities are the classifier's own (an SVM's Platt scaling;
 decision values for a classifier without probabilities) mapped through a calibrator
 (temperature scaling of :class:`~sklearn.calibration.CalibratedClassifierCV` by
-default) fitted on *held-out* scores: each training session is scored by a pipeline
-trained on the other sessions, so the probabilities are sized for a new day, not for
-the days seen in training. With ``n_draws > 0`` and a feature set that can draw its
-rows (``transform_draws``: a bootstrap over a recording's motions, values that could
-not be measured drawn from the training values), the classifier's probabilities are
-averaged over the draws before calibration, at training and prediction alike: a
-damaged recording, or one whose motions disagree, gets a flatter distribution.
+default) fitted on *held-out* scores. By default each training recording is scored by
+a pipeline trained on the other folds of a stratified split in which every fold holds a
+share of every class in every session: the inner pipelines see every day and three
+quarters or more of the recordings, so their scores are sized for the final pipeline.
+Holding out whole sessions instead (``split="groups"``) trains each inner pipeline on
+fewer days than the final one, and its probabilities come out too flat. With
+``n_draws > 0`` and a feature set that can draw its rows (``transform_draws``: a
+bootstrap over a recording's motions, values that could not be measured drawn from the
+training values), the classifier's probabilities are averaged over the draws before
+calibration, at training and prediction alike: a damaged recording, or one whose
+motions disagree, gets a flatter distribution.
 
 The scores of the calibration are in :func:`expected_calibration_error`,
 :func:`reliability_table` and :func:`coverage_curve`; :func:`plot_reliability` draws
@@ -39,6 +43,7 @@ from frictionfit.recording import Recording
 __all__ = [
     "CalibratedPipeline",
     "CalibrationWarning",
+    "SPLITS",
     "accuracy_at_coverage",
     "coverage_curve",
     "expected_calibration_error",
@@ -47,6 +52,9 @@ __all__ = [
     "reliability_table",
     "top_classes",
 ]
+
+#: Inner splits of :class:`CalibratedPipeline` (``split``).
+SPLITS = ("stratified", "groups")
 
 
 def feature_draws(transformer, X: Sequence[Recording], n_draws: int,
@@ -100,9 +108,15 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
         ``features -> ... -> classifier`` over lists of recordings (see
         :func:`frictionfit.classify.make_pipeline`); cloned, never changed.
     group_key : str, default "session"
-        Metadata key of the held-out groups for calibration: each group's scores come
-        from a pipeline trained on the other groups. With fewer than two groups, a
-        stratified 5-fold split (at most the smallest class's count) is used.
+        Metadata key of the groups (days) of the recordings.
+    split : {"stratified", "groups"}, default "stratified"
+        Which pipelines score the training recordings for the calibrator.
+        ``"stratified"``: a stratified k-fold over the recordings (at most 5 folds, at
+        most the smallest count of a class within a group), so every inner pipeline
+        trains on a share of every class in every group, as the final pipeline does;
+        where a class has a single recording in some group, stratified by class alone.
+        ``"groups"``: each group scored by a pipeline trained on the other groups (the
+        stratified split where there are fewer than two groups).
     method : {"temperature", "sigmoid", "isotonic"}, default "temperature"
         The calibrator of :class:`~sklearn.calibration.CalibratedClassifierCV`;
         temperature scaling keeps the classifier's ranking of classes and fits one number.
@@ -125,15 +139,19 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     """
 
     def __init__(self, pipeline: Pipeline, group_key: str = "session",
-                 method: str = "temperature", n_draws: int = 32, seed: int = 0):
+                 split: str = "stratified", method: str = "temperature", n_draws: int = 32,
+                 seed: int = 0):
         self.pipeline = pipeline
         self.group_key = group_key
+        self.split = split
         self.method = method
         self.n_draws = n_draws
         self.seed = seed
 
     def fit(self, X: Sequence[Recording], y) -> CalibratedPipeline:
         X, y = list(X), np.asarray(y)
+        if self.split not in SPLITS:
+            raise ValueError(f"unknown split {self.split!r}; choose from {list(SPLITS)}")
         with warnings.catch_warnings():
             # libsvm's Platt scaling with pairwise coupling (SVC(probability=True)) ranks
             # correct calls far better than temperature-scaled decision values on the lab
@@ -190,14 +208,18 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     def _splits(self, X, y) -> list:
         groups = np.asarray([str(r.metadata.get(self.group_key)) for r in X])
         index = np.arange(len(X))
-        if np.unique(groups).size >= 2:
+        if self.split == "groups" and np.unique(groups).size >= 2:
             return list(LeaveOneGroupOut().split(index, y, groups))
-        smallest = np.unique(y, return_counts=True)[1].min()
+        strata = np.char.add(np.char.add(y.astype(str), "\x1f"), groups)
+        smallest = np.unique(strata, return_counts=True)[1].min()
+        if smallest < 2:  # a class with a single recording in some group
+            strata = y.astype(str)
+            smallest = np.unique(strata, return_counts=True)[1].min()
         if smallest < 2:
             raise ValueError("calibration needs at least two recordings of every class "
-                             f"(the smallest class has {smallest}) or two {self.group_key}s")
+                             f"(the smallest class has {smallest})")
         cv = StratifiedKFold(n_splits=min(5, smallest), shuffle=True, random_state=self.seed)
-        return list(cv.split(index, y))
+        return list(cv.split(index, strata))
 
     def predict_proba(self, X: Sequence[Recording]) -> np.ndarray:
         """Calibrated class probabilities, ``(n, n_classes)``; where the features have

@@ -85,7 +85,7 @@ def make_classifier(name: str = "svm-ovo", *, seed: int = 0, probability: bool =
     All SVMs use ``C=10``; with ``probability=True`` they also give ``predict_proba``
     (libsvm's Platt scaling, fitted by an internal 5-fold split), which
     :class:`~frictionfit.calibration.CalibratedPipeline` then calibrates on held-out
-    sessions; ``knn`` and ``mlp`` always give it.
+    recordings; ``knn`` and ``mlp`` always give it.
     """
     def svc(**kw):
         if probability:  # scikit-learn >= 1.9 warns whenever the flag is given
@@ -410,8 +410,8 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
         Cloned for every fold instead of building one from the names.
     calibrate : bool, default True
         Wrap each fold's pipeline in :class:`~frictionfit.calibration.CalibratedPipeline`
-        (probabilities calibrated on the training sessions held out in turn; averaged
-        over ``n_draws`` feature draws where the features have them); ``probability``
+        (probabilities calibrated on held-out training recordings; averaged over
+        ``n_draws`` feature draws where the features have them); ``probability``
         is then the calibrated probability of the predicted class.
 
     Examples

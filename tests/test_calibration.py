@@ -194,3 +194,29 @@ def test_a_damaged_recording_is_called_with_less_confidence_than_its_intact_twin
             for i in range(len(test))])
         # measured on three simulated sets: gaps 0.906-1.0, cut 0.875-0.979 (docs/decisions.md)
         assert np.mean(damaged < clean) >= share, how
+
+
+def test_stratified_calibration_folds_hold_every_class_of_every_session(overlapping):
+    y = np.array([r.metadata["label"] for r in overlapping])
+    sessions = np.array([r.metadata["session"] for r in overlapping])
+    model = CalibratedPipeline(_pipeline())
+    folds = model._splits(overlapping, y)
+    assert len(folds) == 5  # 8 recordings of each class in each session: 5 folds
+    for train, test in folds:
+        assert np.intersect1d(train, test).size == 0
+        # every inner pipeline trains on every class of every session, as the final one
+        assert len({(a, b) for a, b in zip(y[train], sessions[train], strict=True)}) == 9
+    held = np.sort(np.concatenate([test for _, test in folds]))
+    np.testing.assert_array_equal(held, np.arange(len(overlapping)))
+    by_group = CalibratedPipeline(_pipeline(), split="groups")._splits(overlapping, y)
+    assert [set(sessions[test]) for _, test in by_group] == [{1}, {2}, {3}]
+
+
+def test_stratified_calibration_falls_back_to_classes_and_rejects_unknown_splits(overlapping):
+    one_each = [r for r in overlapping if r.metadata["session"] == 1 or r.name.endswith("_0")]
+    y = np.array([r.metadata["label"] for r in one_each])
+    folds = CalibratedPipeline(_pipeline())._splits(one_each, y)
+    assert len(folds) == 5  # sessions 2-3 hold one recording per class: by class alone
+    with pytest.raises(ValueError, match="unknown split 'days'"):
+        CalibratedPipeline(_pipeline(), split="days").fit(overlapping, np.array(
+            [r.metadata["label"] for r in overlapping]))

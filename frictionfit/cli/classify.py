@@ -76,8 +76,8 @@ def train(
     project: str = typer.Option("auto", help=PROJECT_HELP),
     out: Path = typer.Option(Path("model.skops"), help="Where to save the model (skops)."),
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
-    calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on the "
-                                   "training sessions held out in turn."),
+    calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on "
+                                   "held-out training recordings."),
     draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
@@ -233,7 +233,7 @@ def evaluate(
     predictions: Path = typer.Option(None, help="Save every test recording's prediction, "
                                      "probability and top-3 classes (.csv)."),
     calibrate: bool = typer.Option(True, help="Calibrated class probabilities (held-out "
-                                   "sessions)."),
+                                   "training recordings)."),
     draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
     all_: bool = typer.Option(False, "--all", help="Every feature set x classifier x protocol "
