@@ -1,4 +1,4 @@
-"""The lateral channels' fitted gain: the lateral law recovered where it is known."""
+"""The lateral channels' fitted gain and slip noise: recovered where they are known."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from frictionfit.features.physical import FittedFeatures, PhysicalFeatures
+from frictionfit.fit.derived import SLIP_S, _band_rms
 from frictionfit.fit.lateral import LATERAL, fit_lateral
 from frictionfit.fit.lateral import _regressors_fn as regressors
+from frictionfit.fit.measurement import MeasurementData
 from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.simulation.measurements import simulate_measurements
@@ -24,8 +26,9 @@ def _drive():
     return commands, np.tile([1.0, -1.0], 5), np.arange(0.0, 10.05, 1e-3)
 
 
-def _lateral(seed: int, noise: float):
-    """A lateral channel that follows the lateral law with :data:`TRUTH` plus AR(1) noise."""
+def _lateral(seed: int, noise: float, shaking: float = 0.0):
+    """A lateral channel that follows the lateral law with :data:`TRUTH` plus AR(1) noise and
+    a 70 Hz sine of amplitude ``shaking`` (N) for ``SLIP_S`` after every command."""
     u = to_unconstrained(MODEL, {"k": 20.0, "f_kin": 1.0, "f_static_excess": 0.3,
                                  "relax_frac": 0.3, "tau": 0.2, "offset": 0.7, "leak": 0.1})
     commands, signs, t = _drive()
@@ -36,15 +39,24 @@ def _lateral(seed: int, noise: float):
         e[i] += 0.8 * e[i - 1]
     y = (TRUTH["offset"] + TRUTH["drift"] * t + TRUTH["leak"] * travel + TRUTH["gain"] * force
          + e)
+    for c in commands:
+        window = (t >= c) & (t < c + SLIP_S)
+        y[window] += shaking * np.sin(2 * np.pi * 70.0 * (t[window] - c))
     weight = (t >= commands[2]).astype(float)  # the first motion is not fitted
-    return u, commands, signs, t, y, weight
+    return u, commands, signs, _data(t, y, weight, commands, signs, noise)
+
+
+def _data(t, y, weight, commands, signs, noise) -> MeasurementData:
+    return MeasurementData("synthetic", "index_y", t, y, weight, max(noise, 1e-6), commands,
+                           signs, 1.0, {})
 
 
 def test_lateral_law_recovered_with_its_stderr():
     z = []
     for seed in range(8):
-        u, commands, signs, t, y, weight = _lateral(seed, noise=0.01)
-        values, stderr = fit_lateral(MODEL, u, commands, signs, -1.0, t, y, weight)
+        u, commands, signs, d = _lateral(seed, noise=0.01)
+        got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+        values, stderr = ({n: v[j] for n, v in got.items()} for j in (0, 1))
         assert values["gain"] == pytest.approx(TRUTH["gain"], abs=0.01)
         assert values["leak"] == pytest.approx(TRUTH["leak"], abs=0.01)
         assert 0 < stderr["gain"] < 0.01
@@ -53,21 +65,34 @@ def test_lateral_law_recovered_with_its_stderr():
 
 
 def test_lateral_law_without_noise_is_exact():
-    u, commands, signs, t, y, weight = _lateral(0, noise=0.0)
-    values, _ = fit_lateral(MODEL, u, commands, signs, -1.0, t, y, weight)
-    assert [values[n] for n in LATERAL] == pytest.approx([TRUTH[n] for n in LATERAL], abs=1e-8)
+    u, commands, signs, d = _lateral(0, noise=0.0)
+    got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+    assert [got[n][0] for n in LATERAL] == pytest.approx([TRUTH[n] for n in LATERAL], abs=1e-8)
+    assert got["slip_noise"][0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_lateral_slip_noise_measures_shaking_the_law_cannot_follow():
+    amplitude = 0.02  # N
+    expected = _band_rms(amplitude * np.sin(2 * np.pi * 70.0 * np.arange(0.0, SLIP_S, 1e-3)))
+    u, commands, signs, d = _lateral(1, noise=0.001, shaking=amplitude)
+    noise, se = fit_lateral(MODEL, u, commands, signs, -1.0, d)["slip_noise"]
+    assert noise == pytest.approx(expected, rel=0.2)
+    assert 0 < se < 0.2 * noise
+    u, commands, signs, d = _lateral(1, noise=0.001)
+    assert fit_lateral(MODEL, u, commands, signs, -1.0, d)["slip_noise"][0] < 0.2 * expected
 
 
 def test_lateral_law_with_too_few_blocks_is_nan():
-    u, commands, signs, t, y, weight = _lateral(0, noise=0.01)
-    values, stderr = fit_lateral(MODEL, u, commands, signs, -1.0, t, y,
-                                 np.where(t < 0.01, 1.0, 0.0))
-    assert all(np.isnan(values[n]) and np.isnan(stderr[n]) for n in LATERAL)
+    u, commands, signs, d = _lateral(0, noise=0.01)
+    d = dataclasses.replace(d, weight=np.where(d.t < 0.01, 1.0, 0.0))
+    got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+    assert all(np.isnan(v) for pair in got.values() for v in pair)
 
 
 def test_gain_columns_only_where_the_rubbing_channel_is_fitted():
     names = list(FittedFeatures(with_stderr=True).get_feature_names_out())
     assert "thumb_y:fit_gain [1]" in names and "index_y:fit_gain_stderr [1]" in names
+    assert "thumb_y:fit_slip_noise [log10 N]" in names
     alone = PhysicalFeatures(fitted=True, channels=("thumb_y", "index_x", "index_y"))
     assert not any(n.startswith("thumb_y:fit_") for n in alone.get_feature_names_out())
     assert "index_y:fit_gain [1]" in alone.get_feature_names_out()
@@ -86,3 +111,4 @@ def test_fitted_gain_of_a_lateral_channel_proportional_to_the_rubbing_one():
     # the lateral channel is -0.25 times the rubbing one: offset, drift and leak included
     assert row["index_y:fit_gain [1]"] == pytest.approx(-0.25, abs=0.01)
     assert 0 < row["index_y:fit_gain_stderr [1]"] < 0.01
+    assert np.isfinite(row["index_y:fit_slip_noise [log10 N]"])

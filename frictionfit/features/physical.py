@@ -15,8 +15,9 @@ friction level ``f_static = f_kin + f_static_excess`` (N), and what the fit deri
 ``drag`` (N s/mm); never the sensor's offset, drift or leak, nor the motor's timing.
 ``with_stderr=True`` adds each one's standard error (of the log10 where logged).
 Each lateral channel (``thumb_y``, ``index_y``, with its finger's rubbing channel) gets
-the ``gain`` (1) of :func:`frictionfit.fit.lateral.fit_lateral`: the lateral force over
-the fitted tangential force, signed (never the lateral sensor's offset, drift or leak).
+what :func:`frictionfit.fit.lateral.fit_lateral` finds: the ``gain`` (1, the lateral force
+over the fitted tangential force, signed) and the lateral stick-slip ``slip_noise`` (N,
+floored as the rubbing channels'); never the lateral sensor's offset, drift or leak.
 
 **Measured** (``measured=True``), per movement phase (``out``, ``back``), from the
 signal after a moving average of 9 samples, relative to its value ``x0`` at the
@@ -79,8 +80,9 @@ SLIP_FLOOR_N = 1e-3
 FITTED_CHANNELS = ("thumb_x", "index_x")
 #: Lateral channel -> the rubbing channel whose fitted force it is fitted on.
 LATERAL_CHANNELS = {"thumb_y": "thumb_x", "index_y": "index_x"}
-#: Coefficients of the lateral fit kept as features (:mod:`frictionfit.fit.lateral`).
-LATERAL_KEPT = ("gain",)
+#: What the lateral fit gives that is kept as features (:mod:`frictionfit.fit.lateral`;
+#: ``slip_noise`` in log10, floored at :data:`SLIP_FLOOR_N` as the rubbing channels' is).
+LATERAL_KEPT = ("gain", "slip_noise")
 #: Measured quantities per phase and their units.
 MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "s"),
             ("onset_rate", "N/s"), ("t_peak", "s"), ("slip_ripple", "1"),
@@ -192,7 +194,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 17  # 17: the lateral channels' fitted gain
+    _version = 18  # 18: the lateral channels' fitted gain and slip noise
     _view_params = ("with_stderr",)  # the stderrs are stored either way
     _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
@@ -230,8 +232,8 @@ class PhysicalFeatures(RecordingFeatures):
         """Each kept lateral coefficient, then its standard error (both cached)."""
         from frictionfit.fit.lateral import LATERAL_UNITS
 
-        return [n for p in LATERAL_KEPT
-                for n in (f"{p} [{LATERAL_UNITS[p]}]", f"{p}{_STDERR}{LATERAL_UNITS[p]}]")]
+        units = {p: "log10 N" if p == "slip_noise" else LATERAL_UNITS[p] for p in LATERAL_KEPT}
+        return [n for p in LATERAL_KEPT for n in (f"{p} [{units[p]}]", f"{p}{_STDERR}{units[p]}]")]
 
     def _fitted_channel_names(self, ch: str) -> list[str]:
         """The fitted columns of channel ``ch`` (none where it is not fitted)."""
@@ -399,9 +401,11 @@ class PhysicalFeatures(RecordingFeatures):
             warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=4)
             return np.full(len(self._lateral_names()), np.nan)
         commands, signs = res.drive_input[k]
-        values, stderr = fit_lateral(res.member(k), res.u[k], commands, signs,
-                                     float(res.direction[k]), d.t, d.y, d.weight)
-        return np.array([v for p in LATERAL_KEPT for v in (values[p], stderr[p])])
+        got = fit_lateral(res.member(k), res.u[k], commands, signs, float(res.direction[k]), d)
+        noise, se = got["slip_noise"]
+        noise = max(noise, SLIP_FLOOR_N) if np.isfinite(noise) else noise
+        got["slip_noise"] = (np.log10(noise), se / (noise * np.log(10)))
+        return np.array([v for p in LATERAL_KEPT for v in got[p]])
 
     def _fitted_row(self, values: dict, stderr: dict, derived: dict) -> list[float]:
         """Log10 of the positive parameters, each followed by its stderr (of the log10)."""

@@ -16,7 +16,9 @@ stroke) and ``gain`` (1: lateral over tangential force, signed). The problem is 
 weighted least squares on the lateral channel's blocks (the weights and the first motion
 left out as in the rubbing channel's fit); standard errors from the residual variance,
 inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1 autocorrelation ``rho``
-as the whole fit's are.
+as the whole fit's are. What the lateral law leaves, the lateral stick-slip, is measured
+in its residuals as the rubbing channel's is: ``slip_noise`` (N,
+:func:`~frictionfit.fit.derived.slip_noise`).
 """
 
 from __future__ import annotations
@@ -28,14 +30,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
+from frictionfit.fit.derived import slip_noise
+from frictionfit.fit.measurement import MeasurementData
 from frictionfit.models import MeasurementModel
 
 __all__ = ["LATERAL", "LATERAL_UNITS", "fit_lateral"]
 
 #: The lateral law's coefficients, in the order of its regressors.
 LATERAL = ("offset", "drift", "leak", "gain")
-#: Their units.
-LATERAL_UNITS = {"offset": "N", "drift": "N/s", "leak": "N/mm", "gain": "1"}
+#: Units of the coefficients and of the lateral ``slip_noise``.
+LATERAL_UNITS = {"offset": "N", "drift": "N/s", "leak": "N/mm", "gain": "1", "slip_noise": "N"}
 #: Fewest fitted blocks for a lateral fit.
 MIN_BLOCKS = 20
 
@@ -55,31 +59,33 @@ def _regressors_fn(model: MeasurementModel):
 
 
 def fit_lateral(model: MeasurementModel, u: np.ndarray, commands: np.ndarray,
-                signs: np.ndarray, direction: float, t: np.ndarray, y: np.ndarray,
-                weight: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
-    """Values and standard errors of :data:`LATERAL` for one lateral channel (module notes).
+                signs: np.ndarray, direction: float, lateral: MeasurementData
+                ) -> dict[str, tuple[float, float]]:
+    """Name -> ``(value, stderr)`` of :data:`LATERAL` and ``slip_noise`` for one lateral
+    channel (module notes).
 
     ``model``, ``u`` (unconstrained), ``commands`` (s, with each movement's latency),
-    ``signs`` and ``direction``: the rubbing channel's fit; ``t`` (s), ``y`` (N) and
-    ``weight``: the lateral channel's blocks (:func:`~frictionfit.fit.measurement.
-    measurement_data`; weight 0: not fitted). NaN where fewer than :data:`MIN_BLOCKS`
-    blocks are fitted or the regressors are degenerate.
+    ``signs`` and ``direction``: the rubbing channel's fit; ``lateral``: the lateral
+    channel's blocks (:func:`~frictionfit.fit.measurement.measurement_data`). NaN where fewer
+    than :data:`MIN_BLOCKS` blocks are fitted or the regressors are degenerate.
     """
-    nan = {n: np.nan for n in LATERAL}
+    t, weight = lateral.t, lateral.weight
     fitted = weight > 0
+    nan = {n: (np.nan, np.nan) for n in LATERAL_UNITS}
     if fitted.sum() < MIN_BLOCKS or not np.all(np.isfinite(u)):
-        return nan, dict(nan)
+        return nan
     force, travel = (np.asarray(a) for a in _regressors_fn(model)(
         jnp.asarray(u), jnp.asarray(t), jnp.asarray(commands), jnp.asarray(signs),
         jnp.asarray(direction, dtype=jnp.float64)))
     a = np.stack([np.ones_like(t), t - t[0], travel, force], axis=1) * weight[:, None]
-    b = np.where(fitted, y, 0.0) * weight
+    b = np.where(fitted, lateral.y, 0.0) * weight
     coef, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
     if rank < len(LATERAL):
-        return nan, dict(nan)
-    resid = b - a @ coef
+        return nan
+    resid = a @ coef - b  # weight (prediction - y), as the whole fit's
     s2 = np.sum(resid**2) / (fitted.sum() - len(LATERAL))
     rho = float(np.clip(lag1_rho(resid[None], fitted[None])[0], *RHO_POSTERIOR))
-    cov = np.linalg.inv(a.T @ a) * s2 * (1 + rho) / (1 - rho)
-    return (dict(zip(LATERAL, map(float, coef), strict=True)),
-            dict(zip(LATERAL, map(float, np.sqrt(np.diag(cov))), strict=True)))
+    se = np.sqrt(np.diag(np.linalg.inv(a.T @ a)) * s2 * (1 + rho) / (1 - rho))
+    out = {n: (float(v), float(e)) for n, v, e in zip(LATERAL, coef, se, strict=True)}
+    out["slip_noise"] = slip_noise(resid, t, weight, commands, lateral.noise)
+    return out
