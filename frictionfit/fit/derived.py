@@ -42,7 +42,8 @@ import numpy as np
 from frictionfit.models import MeasurementModel
 from frictionfit.segmentation import moving_average
 
-__all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities"]
+__all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities",
+           "slip_noise"]
 
 #: Name -> unit of the derived quantities.
 DERIVED = {"f_held": "N", "f_peak": "N", "onset_rate": "N/s", "f_static": "N",
@@ -92,9 +93,11 @@ def _band_rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(band**2)))
 
 
-def _slip_noise(resid: np.ndarray, t: np.ndarray, weight: np.ndarray, commands: np.ndarray,
-                noise: float) -> tuple[float, float]:
-    """``slip_noise`` and its standard error from one item's data residuals (N)."""
+def slip_noise(resid: np.ndarray, t: np.ndarray, weight: np.ndarray, commands: np.ndarray,
+               noise: float) -> tuple[float, float]:
+    """``slip_noise`` and its standard error (N) from one channel's residuals ``resid`` (N)
+    at block times ``t`` (s) with block ``weight``, ``commands`` (s) and the sd ``noise`` (N)
+    of one sample (module notes)."""
     short, long = SLIP_BAND
     white = noise**2 * (1.0 / short - 1.0 / long)  # white noise's variance in the band
     per_move = []
@@ -127,7 +130,7 @@ def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.nda
     se = np.sqrt(np.maximum(var, 0.0))
     out = []
     for i, d in enumerate(items):
-        slip = _slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
+        slip = slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
         out.append({"f_held": (float(abs(value[i, 0])), float(se[i, 0])),
                     "f_peak": (float(abs(value[i, 1])), float(se[i, 1])),
                     "onset_rate": (float(abs(value[i, 2])), float(se[i, 2])),

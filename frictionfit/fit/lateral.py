@@ -1,0 +1,91 @@
+"""The lateral channels of a rubbing measurement, described by the fitted tangential force.
+
+A finger's lateral channel (``thumb_y``, ``index_y``) carries a share of the tangential
+force its rubbing channel (``thumb_x``, ``index_x``) measures: the friction force is not
+exactly along the stroke (the textile's weave, the finger's tilt, the sensor's mounting).
+Given the whole-measurement fit of the rubbing channel
+(:func:`~frictionfit.fit.measurement.fit_measurements`), the lateral channel is fitted as
+
+``y = offset + drift t + leak x + gain F``
+
+with ``F`` (N) the fitted contact force as the rubbing channel sees it (the law with its
+drag, signed by the fit's direction; the rubbing sensor's offset, drift and leak left out)
+and ``x`` (mm) the fitted finger travel: :data:`LATERAL` are ``offset`` (N), ``drift``
+(N/s), ``leak`` (N/mm: the lateral sensor's share of the normal force's change along the
+stroke) and ``gain`` (1: lateral over tangential force, signed). The problem is linear:
+weighted least squares on the lateral channel's blocks (the weights and the first motion
+left out as in the rubbing channel's fit); standard errors from the residual variance,
+inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1 autocorrelation ``rho``
+as the whole fit's are. What the lateral law leaves, the lateral stick-slip, is measured
+in its residuals as the rubbing channel's is: ``slip_noise`` (N,
+:func:`~frictionfit.fit.derived.slip_noise`).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
+from frictionfit.fit.derived import slip_noise
+from frictionfit.fit.measurement import MeasurementData
+from frictionfit.models import MeasurementModel
+
+__all__ = ["LATERAL", "LATERAL_UNITS", "fit_lateral"]
+
+#: The lateral law's coefficients, in the order of its regressors.
+LATERAL = ("offset", "drift", "leak", "gain")
+#: Units of the coefficients and of the lateral ``slip_noise``.
+LATERAL_UNITS = {"offset": "N", "drift": "N/s", "leak": "N/mm", "gain": "1", "slip_noise": "N"}
+#: Fewest fitted blocks for a lateral fit.
+MIN_BLOCKS = 20
+
+
+@lru_cache(maxsize=16)
+def _regressors_fn(model: MeasurementModel):
+    """Jitted ``(u, t, commands, signs, direction) -> (F, x)``: the fitted contact force as
+    the rubbing channel sees it (N; sensor terms zeroed) and the finger travel (mm)."""
+    sensor = jnp.array([model.param_names.index(n) for n in ("offset", "drift", "leak")])
+
+    def regressors(u, t, commands, signs, direction):
+        force = model.predict(u.at[sensor].set(0.0), t, commands, signs, direction)
+        travel, _ = model.finger(u, t, commands, signs)
+        return force, travel
+
+    return jax.jit(regressors)
+
+
+def fit_lateral(model: MeasurementModel, u: np.ndarray, commands: np.ndarray,
+                signs: np.ndarray, direction: float, lateral: MeasurementData
+                ) -> dict[str, tuple[float, float]]:
+    """Name -> ``(value, stderr)`` of :data:`LATERAL` and ``slip_noise`` for one lateral
+    channel (module notes).
+
+    ``model``, ``u`` (unconstrained), ``commands`` (s, with each movement's latency),
+    ``signs`` and ``direction``: the rubbing channel's fit; ``lateral``: the lateral
+    channel's blocks (:func:`~frictionfit.fit.measurement.measurement_data`). NaN where fewer
+    than :data:`MIN_BLOCKS` blocks are fitted or the regressors are degenerate.
+    """
+    t, weight = lateral.t, lateral.weight
+    fitted = weight > 0
+    nan = {n: (np.nan, np.nan) for n in LATERAL_UNITS}
+    if fitted.sum() < MIN_BLOCKS or not np.all(np.isfinite(u)):
+        return nan
+    force, travel = (np.asarray(a) for a in _regressors_fn(model)(
+        jnp.asarray(u), jnp.asarray(t), jnp.asarray(commands), jnp.asarray(signs),
+        jnp.asarray(direction, dtype=jnp.float64)))
+    a = np.stack([np.ones_like(t), t - t[0], travel, force], axis=1) * weight[:, None]
+    b = np.where(fitted, lateral.y, 0.0) * weight
+    coef, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    if rank < len(LATERAL):
+        return nan
+    resid = a @ coef - b  # weight (prediction - y), as the whole fit's
+    s2 = np.sum(resid**2) / (fitted.sum() - len(LATERAL))
+    rho = float(np.clip(lag1_rho(resid[None], fitted[None])[0], *RHO_POSTERIOR))
+    se = np.sqrt(np.diag(np.linalg.inv(a.T @ a)) * s2 * (1 + rho) / (1 - rho))
+    out = {n: (float(v), float(e)) for n, v, e in zip(LATERAL, coef, se, strict=True)}
+    out["slip_noise"] = slip_noise(resid, t, weight, commands, lateral.noise)
+    return out
