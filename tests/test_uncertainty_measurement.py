@@ -120,3 +120,45 @@ def test_only_whole_measurement_fits_are_accepted(fitted):
         measurement_posterior(dataclasses.replace(res, drive="events"), items)
     with pytest.raises(FitError, match="1 items but the fit has 2 rows"):
         measurement_posterior(res, items[:1])
+
+
+def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
+    """emcee samples in the fit's unconstrained ``u``, where the density (flat on the value's
+    bounds, times the logistic Jacobian) has its mode inside every bound: started with a
+    parameter put on its bound (``u`` = 40, where the logistic map's slope is 0), the search
+    for emcee's first proposal goes back to the mode, with a finite, non-zero width."""
+    import jax.numpy as jnp
+
+    from frictionfit.fit.measurement import stack_items
+    from frictionfit.uncertainty.measurement import (
+        _U_START,
+        _block_variance,
+        _proposal_start,
+        _unconstrained_density_fn,
+    )
+
+    items, res = fitted
+    model = res.member(0)
+    free = tuple(model.param_names.index(p) for p in res.free_names(0))
+    u = np.stack(res.u)
+    j = free.index(model.param_names.index("relax_frac2"))
+    u_free = u[:, list(free)].copy()
+    u_free[:, j] = 40.0
+    sub = [dataclasses.replace(d, commands=np.asarray(res.drive_input[i][0]))
+           for i, d in enumerate(items)]
+    data = tuple(jnp.asarray(a) for a in stack_items(sub, u))
+    s2 = _block_variance(model, free, u[:, list(free)], data, res.redchi)
+    mode, covs = _proposal_start(model, free, u_free, data, s2)
+    density = _unconstrained_density_fn(model, free)
+    start = np.clip(u_free, -_U_START, _U_START)
+    for k in range(2):
+        sd = np.sqrt(np.diag(covs[k]))
+        assert np.all(np.isfinite(sd)) and np.all(sd > 0)
+        if abs(u[k, free[j]]) < _U_START:  # the fit's optimum inside: back there
+            assert abs(mode[k, j] - u[k, free[j]]) < 2 * sd[j]
+        # a maximum along relax_frac2: higher than a width either side and than the start
+        points = np.repeat(mode[k][None], 4, axis=0)
+        points[1:, j] += (-sd[j], sd[j], 0.0)
+        points[3] = start[k]
+        lp = np.asarray(density(jnp.asarray(points), jnp.full(4, k), data, jnp.asarray(s2)))
+        assert np.all(lp[0] >= lp[1:])

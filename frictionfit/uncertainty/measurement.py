@@ -12,11 +12,14 @@ covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximatio
 
 - ``"laplace"``: draws from ``N(u_hat, cov)`` over the free parameters in the fit's
   unconstrained coordinates, mapped to physical units; quantiles and sd of the draws.
-- ``"emcee"``: the density above in sampling coordinates (the log of ``loglogit``
-  parameters; flat on the bounds there), all recordings' walkers in one ensemble with
+- ``"emcee"``: the density above, flat on the bounds of the sampling coordinates (the log
+  of ``loglogit`` parameters, the value of ``logit`` ones), sampled in the fit's
+  unconstrained ``u`` (times the logistic Jacobian: a value on its bound is no wall there,
+  and the density has its mode inside), all recordings' walkers in one ensemble with
   :func:`~frictionfit.uncertainty._ensemble.run_lockstep` (adaptive independence proposal,
-  started from the Laplace Gaussian, each recording run to >= ``min_tau_multiple``
-  integrated autocorrelation times), one jitted, vmapped JAX call per step.
+  started from a Gauss-Newton mode and covariance in ``u``, each recording run to >=
+  ``min_tau_multiple`` integrated autocorrelation times), jitted, vmapped JAX calls in
+  chunks of one size per step.
 - ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
@@ -40,7 +43,7 @@ import numpy as np
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import fd_slope, pad_rows
+from frictionfit.fit._numerics import pad_rows
 from frictionfit.fit.measurement import (
     MeasurementData,
     profile_drops,
@@ -49,7 +52,6 @@ from frictionfit.fit.measurement import (
 )
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
-from frictionfit.uncertainty._logpost import from_sampling, sampling_bounds, to_sampling
 from frictionfit.uncertainty.engine import METHODS, auto_reason, emcee_summary, store_chain
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
@@ -72,20 +74,24 @@ def _log_density(model: MeasurementModel, free: tuple[int, ...]):
     return one
 
 
+def _bounded(model: MeasurementModel, free: tuple[int, ...]) -> np.ndarray:
+    """Which free parameters are bounded (a logistic map between ``u`` and the value)."""
+    return np.array([model.params[j].transform != "identity" for j in free])
+
+
 @lru_cache(maxsize=16)
-def _sampling_density_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """:func:`_log_density` over rows, in sampling coordinates of the free parameters, flat on their
-    bounds there (-inf outside): ``f(X (R, q), idx, data, s2, x_base (n, p))``."""
+def _unconstrained_density_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """:func:`_log_density` over rows, flat on the bounds of each parameter's sampling
+    coordinate (value or log value) and carried to the fit's unconstrained ``u`` (its
+    logistic Jacobian): ``f(U (R, q), idx, data, s2)``."""
     density = _log_density(model, free)
-    lo, hi = (b[list(free)] for b in sampling_bounds(model))
-    free_idx = jnp.asarray(free)
+    bounded = jnp.asarray(_bounded(model, free))
 
-    def one(x, i, data, s2, x_base):
-        u = from_sampling(model, x_base[i].at[free_idx].set(x), jnp)[free_idx]
-        inside = jnp.all((x > lo) & (x < hi))
-        return jnp.where(inside, density(u, i, data, s2), -jnp.inf)
+    def one(u, i, data, s2):
+        log_jac = -jax.nn.softplus(u) - jax.nn.softplus(-u)
+        return density(u, i, data, s2) + jnp.sum(jnp.where(bounded, log_jac, 0.0))
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
 
 
 def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
@@ -247,7 +253,7 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
             _store_laplace(fit, model, i, draws, out)
     sel = np.flatnonzero(use_emcee)
     if sel.size:
-        _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, emcee_kw)
+        _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, emcee_kw)
 
 
 def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) -> None:
@@ -263,24 +269,90 @@ def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) 
                             f"{Status(int(fit.status[i])).name.lower()}; use emcee")
 
 
-def _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, kw: dict) -> None:
-    """emcee for the group's rows ``sel``, started from their Laplace Gaussian carried to
-    sampling coordinates (to first order; the pilot stages correct it)."""
+#: Where a bounded parameter's ``u`` lies beyond this (a value on its bound), the search for
+#: the mode of the density in ``u`` starts from here: that density (the flat one times the
+#: logistic Jacobian) has its mode inside, not at infinity.
+_U_START = 5.0
+
+
+@lru_cache(maxsize=16)
+def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted ``(u_free, data, s2, bounded) -> (log density, gradient, Gauss-Newton
+    Hessian)`` of one item's density in ``u`` (:func:`_unconstrained_density_fn`), the
+    logistic Jacobian's terms exact."""
+    residual = residual_fn(model, free)
+
+    def one(u, data, s2, bounded):
+        jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u)
+        sig = jax.nn.sigmoid(u)
+        lp = -0.5 * jnp.sum(r**2) / s2 + jnp.sum(
+            jnp.where(bounded, -jax.nn.softplus(u) - jax.nn.softplus(-u), 0.0))
+        grad = -jac.T @ r / s2 + jnp.where(bounded, 1.0 - 2.0 * sig, 0.0)
+        hess = jac.T @ jac / s2 + jnp.diag(jnp.where(bounded, 2.0 * sig * (1.0 - sig), 0.0))
+        return lp, grad, hess
+
+    return jax.jit(one)
+
+
+def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
+                    data: tuple, s2: np.ndarray, steps: int = 12, max_step: float = 2.0
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Per item, the mode and covariance of emcee's first proposal in ``u``: damped
+    Gauss-Newton steps (at most ``max_step`` in ``u``, halved until the density rises) from
+    the fit's optimum with bounded parameters moved within ``+-_U_START``, and the inverse of
+    the Gauss-Newton Hessian there plus the logistic density's precision (``3 / pi^2``) on
+    bounded parameters: a floor that gives width to a parameter the data barely see (one on
+    its bound, whose column of the fit's covariance is 0)."""
+    bounded = _bounded(model, free)
+    gn = _gauss_newton_fn(model, free)
+    floor = np.diag(np.where(bounded, 3.0 / np.pi**2, 0.0))
+    mode = np.where(bounded, np.clip(u_free, -_U_START, _U_START), u_free)
+    covs = np.empty((len(mode), len(free), len(free)))
+    for k in range(len(mode)):
+        row = jax.tree_util.tree_map(lambda a, k=k: a[k], data)
+        lp, grad, hess = (np.asarray(a) for a in gn(jnp.asarray(mode[k]), row, s2[k], bounded))
+        for _ in range(steps):
+            step = np.linalg.solve(hess + floor, grad)
+            step *= min(1.0, max_step / max(np.max(np.abs(step)), 1e-300))
+            for _ in range(10):  # halve until the density rises
+                new = [np.asarray(a) for a in gn(jnp.asarray(mode[k] + step), row, s2[k],
+                                                  bounded)]
+                if new[0] > lp:
+                    break
+                step = 0.5 * step
+            else:
+                break
+            mode[k] = mode[k] + step
+            lp, grad, hess = new
+        covs[k] = np.linalg.inv(hess + floor)
+    return mode, covs
+
+
+def _chunked(f, chunk: int = 128):
+    """``f(x (R, q), idx (R,), *args)`` evaluated in chunks of one size (``chunk``, or the
+    power of two above ``R`` if smaller): few compiled shapes, little padding."""
+
+    def evaluate(x: np.ndarray, idx: np.ndarray, *args) -> np.ndarray:
+        size = min(chunk, 1 << (x.shape[0] - 1).bit_length())
+        n = -(-x.shape[0] // size) * size
+        r = pad_rows(np.arange(x.shape[0]), n)
+        out = [np.asarray(f(jnp.asarray(x[r[a:a + size]]), jnp.asarray(idx[r[a:a + size]]),
+                            *args)) for a in range(0, n, size)]
+        return np.concatenate(out)[: x.shape[0]]
+
+    return evaluate
+
+
+def _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, kw: dict) -> None:
+    """emcee for the group's rows ``sel`` in the fit's unconstrained coordinates (the density
+    flat on the bounds of the sampling coordinates, times the logistic Jacobian), started
+    from :func:`_proposal_start` (the pilot stages refit the proposal)."""
     free_l = list(free)
-    x_base = to_sampling(model, u_hat)
-    slope = fd_slope(lambda u: to_sampling(model, u), u_hat)[:, free_l]
-    covs = cov * slope[:, :, None] * slope[:, None, :]
-    f = _sampling_density_fn(model, free)
     sub = jax.tree_util.tree_map(lambda a: a[sel], data)
-    s2_sub, x_sub = s2[sel], jnp.asarray(x_base[sel])
-
-    def evaluate(x: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        # padded to a power of two: few shapes compile as rows finish
-        r = pad_rows(np.arange(x.shape[0]), 1 << (x.shape[0] - 1).bit_length())
-        return np.asarray(f(jnp.asarray(x[r]), jnp.asarray(idx[r]), sub, s2_sub, x_sub)
-                          )[: x.shape[0]]
-
-    chains = run_lockstep(evaluate, x_base[sel][:, free_l], covs[sel], **kw)
+    s2_sub = s2[sel]
+    centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, np.asarray(s2_sub))
+    f = _chunked(_unconstrained_density_fn(model, free))
+    chains = run_lockstep(lambda x, idx: f(x, idx, sub, s2_sub), centre, covs, **kw)
     for k, chain in zip(sel, chains, strict=True):
         i = rows[k]
         out["method"][i] = "emcee"
@@ -289,9 +361,9 @@ def _sample_emcee(model, free, data, s2, u_hat, cov, sel, rows, out, kw: dict) -
             out["converged"][i] = False
             _nan_row(model, i, out)
             continue
-        full = np.broadcast_to(x_base[k], (*chain.samples.shape[:2], model.n_params)).copy()
+        full = np.broadcast_to(u_hat[k], (*chain.samples.shape[:2], model.n_params)).copy()
         full[..., free_l] = chain.samples
-        chain.samples = from_sampling(model, full)
+        chain.samples = full
         tau = np.full(model.n_params, np.nan)  # fixed parameters: no chain statistics
         tau[free_l] = chain.tau
         chain.tau = tau
