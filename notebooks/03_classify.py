@@ -53,7 +53,8 @@ print(len(recs), "measurements of", len(CLASSES), "classes in 2 sessions")
 # channel, with the gain-free shape quantities (slip ripple, normalised relaxation
 # curve); `fitted` is the contact law's parameters alone, from one whole-measurement fit
 # per recording of each channel along the rubbing direction (`thumb_x`, `index_x`: rig,
-# sensor and law fitted once each); `physical (all)` is both (`fitted=True`). The data
+# sensor and law fitted once each), and each lateral channel's law on its finger's fitted
+# force (`thumb_y`, `index_y`: the lateral share and its stick-slip); `physical (all)` is both (`fitted=True`). The data
 # span two sessions, so `evaluate` asks for the LDA projection between the scaler and the SVM
 # (`projection_for`), but with one training day of 36 recordings in 12 classes there are
 # too few rows for the within-class covariance of 88 features, and the projection steps
@@ -236,28 +237,31 @@ top.round(3)
 # Trained on one day and tested on the other, on 12 deliberately close classes, the
 # fitted contact law alone (`fitted`: stiffness, static friction level, held force,
 # stick-slip intensity, relaxation and drag of the two rubbing channels, each recording
-# fitted whole) scores best, 0.69 (folds 0.72 / 0.67), ahead of the measured contact
-# quantities (`physical`, 0.57), both together (0.61), handcrafted (0.35), FFT bins (0.31)
-# and raw signals (0.24). Every physical set gets the layer count right (1.00), and most
-# errors fall inside the designed look-alike pairs (curtain-rose vs curtain-white,
-# paper-2 vs banknote-2). With all physical features the SVM leans on the onset rates,
-# the relaxation curve, the peak times, the slip ripple and the fitted stiffness. These
-# measurements follow the model's own physics; on the lab stand-in, whose physics is not
-# the model's, the measured quantities win (0.94 against 0.83 leave-one-session-out on
-# three days), which is why `physical` is the default. With one training day the LDA projection stepped aside (too few rows); on
-# the lab stand-in, with two or three training days, it is what lifts physical features
-# above the hand-crafted baseline.
+# fitted whole, and each lateral channel's share of the fitted force and its stick-slip)
+# and all physical features together both score 0.64 (folds 0.58 / 0.69 and 0.56 /
+# 0.72), ahead of the measured contact quantities (`physical`, 0.57), handcrafted (0.35),
+# FFT bins (0.31) and raw signals (0.24). Every physical set gets the layer count right
+# (1.00), and most errors fall inside the designed look-alike pairs (curtain-rose vs
+# curtain-white, paper-2 vs banknote-2 and pe-bag-2). With all physical features the SVM
+# leans on the onset rates, the peak times, the relaxation curve and the fitted peak
+# force, onset rate and static level. On the lab stand-in, whose physics is not the
+# model's, the fitted parameters win too (0.952 against 0.940 leave-one-session-out on
+# three days, 0.967 together); `physical` stays the default because it needs no fit. With
+# one training day the LDA projection stepped aside (too few rows); on the lab stand-in,
+# with two or three training days, it is what lifts physical features above the
+# hand-crafted baseline.
 #
 # The class probabilities are only as good as what they are calibrated on: with one
 # training day of three recordings per class, the calibration folds are tiny and the
-# expected calibration error is 0.22 (on the lab stand-in, calibrated on held-out
-# sessions, it is 0.03). The surest call of session 2 (curtain-white-2 at 0.76) drops
-# to 0.47 once 30 % of its samples are lost, and its motions' draws spread out: the
-# damage shows in the probability instead of hiding in a confident label.
+# expected calibration error is 0.22 (on the lab stand-in, with three days, it is
+# 0.03-0.04). The surest call of session 2 (curtain-white-2 at 0.76) drops to 0.47 once
+# 30 % of its samples are lost, and its motions' draws spread out: the damage shows in
+# the probability instead of hiding in a confident label.
 #
 # The fit's own posterior reaches the call too. The least certain fit of session 2
-# (curtain-rose-2, stderrs about a quarter of the spread between training recordings,
-# against a tenth for the median recording) shows why: its sensor offset, leak and slow
-# relaxation branch trade off, and its kinetic level and static peak are not identified
-# apart (their sum is, `f_static` +- 0.6 N); drawn from that posterior, its fitted
-# features give the true class 0.28 instead of 0.31, and the look-alike classes more.
+# (pe-bag-2, stderrs about a third of the spread between training recordings, against
+# an eighth for the median recording) shows why: its sensor offset and leak trade off,
+# its stiffness is known to 36 % and its fast relaxation branch is not distinguishable
+# from none. From point values its fitted features call it paper-2 (0.154 against 0.146
+# for the true pe-bag-2); drawn from that posterior, the true class gets 0.168 and the
+# call turns to it, with the look-alikes close behind: a doubtful fit gives a close call.
