@@ -18,14 +18,19 @@ from frictionfit.models import get_model
 from frictionfit.simulation.trials import simulate_trials
 
 
-def test_one_trial_through_optimistix_equals_the_pooled_fit():
+def _relaxation_problems(seed: int):
+    """Three simulated relaxation trials: starting points, their data and the residual."""
     model = get_model("relaxation")
-    ts = simulate_trials("relaxation", 3, seed=1)
+    ts = simulate_trials("relaxation", 3, seed=seed)
     n = ts.y.shape[0]
     u0 = np.asarray(initial_guess(model, ts.t, ts.y, ts.t_out, ts.t_back, np.ones(n)))
-    free = tuple(range(model.n_params))
     data = Problem.of(Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back), direction=1.0), u0)
-    residual = residual_fn(model, free)
+    return u0, data, residual_fn(model, tuple(range(model.n_params)))
+
+
+def test_one_trial_through_optimistix_equals_the_pooled_fit():
+    u0, data, residual = _relaxation_problems(seed=1)
+    n = u0.shape[0]
     solver = BatchedLevenbergMarquardt(rtol=1e-8, atol=1e-10, ftol=1e-6)
     # 3 trials in 2 slots: the third is refilled into a slot mid-solve
     pooled, status, steps = solve_pooled(solver, residual, u0, data, pool_size=2,
@@ -43,16 +48,11 @@ def test_the_pool_returns_the_normal_matrix_at_each_solution():
     there (so nothing computes it again), also for a problem refilled into a slot."""
     import jax
 
-    model = get_model("relaxation")
-    ts = simulate_trials("relaxation", 3, seed=2)
-    n = ts.y.shape[0]
-    u0 = np.asarray(initial_guess(model, ts.t, ts.y, ts.t_out, ts.t_back, np.ones(n)))
-    free = tuple(range(model.n_params))
-    data = Problem.of(Trials.from_arrays(ts.y, ts.t, (ts.t_out, ts.t_back), direction=1.0), u0)
-    residual = residual_fn(model, free)
+    u0, data, residual = _relaxation_problems(seed=2)
+    n, p = u0.shape
     u, status, _, stats = solve_pooled(BatchedLevenbergMarquardt(), residual, u0, data,
                                        pool_size=2, max_steps=200, solver_stats=True)
-    assert stats["jtj"].shape == (n, len(free), len(free))
+    assert stats["jtj"].shape == (n, p, p)
     for i in range(n):
         row = jax.tree_util.tree_map(jnp.asarray, _row(data, i))
         jac = np.asarray(jax.jacfwd(residual)(jnp.asarray(u[i]), row))
