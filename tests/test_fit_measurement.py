@@ -204,11 +204,13 @@ def test_fitted_features_follow_the_sklearn_contract():
 
     f = FittedFeatures(rig="recording", decimate=2)
     assert clone(f).get_params() == f.get_params()
+    rubbing = ("k [log10 N/mm]", "f_static [log10 N]", "f_held [log10 N]", "f_peak [log10 N]",
+               "onset_rate [log10 N/s]", "slip_noise [log10 N]", "relax_frac [1]",
+               "tau [log10 s]", "drag [log10 N s/mm]")
+    lateral = ("gain [1]", "slip_noise [log10 N]")  # the lateral law on the finger's force
     assert list(f.get_feature_names_out()) == [
-        f"{ch}:fit_{n}" for ch in ("thumb_x", "index_x")
-        for n in ("k [log10 N/mm]", "f_static [log10 N]", "f_held [log10 N]",
-                  "f_peak [log10 N]", "onset_rate [log10 N/s]", "slip_noise [log10 N]",
-                  "relax_frac [1]", "tau [log10 s]", "drag [log10 N s/mm]")]
+        f"{finger}_{axis}:fit_{n}" for finger in ("thumb", "index")
+        for axis, names in (("x", rubbing), ("y", lateral)) for n in names]
 
 
 def test_single_motions_refitted_with_the_rig_and_sensor_held(simulated):
