@@ -15,7 +15,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit._guess import initial_guess, multi_starts, saturated_samples, trial_keys
-from frictionfit.fit._numerics import pad_rows
+from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
@@ -33,16 +33,7 @@ PROGRESS_MIN_TRIALS = 64
 
 def _at_optimum(model, free, u, data, chunk):
     """Masked residuals and ``J^T J`` (free parameters) at ``u``, in padded chunks."""
-    fn = jacobian_fn(model, free)
-    n = u.shape[0]
-    resid, jtj = [], []
-    for start in range(0, n, chunk):
-        idx = np.arange(start, min(start + chunk, n))
-        rows = pad_rows(idx, chunk)
-        r, a = fn(u[rows][:, list(free)], jax.tree_util.tree_map(lambda x, r=rows: x[r], data))
-        resid.append(np.asarray(r)[: idx.size])
-        jtj.append(np.asarray(a)[: idx.size])
-    return np.concatenate(resid), np.concatenate(jtj)
+    return map_chunks(jacobian_fn(model, free), (u[:, list(free)], data), chunk)
 
 
 @dataclass(frozen=True)

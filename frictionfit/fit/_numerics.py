@@ -1,13 +1,15 @@
 """Small numerics shared by the fit and the posterior: the delta method, scaled
-inverses and condition numbers of normal matrices, and padding to a chunk size."""
+inverses and condition numbers of normal matrices, and evaluation in padded chunks."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import jax
 import numpy as np
 
-__all__ = ["DELTA_STEP", "fd_slope", "pad_rows", "scaled_condition", "scaled_pinv"]
+__all__ = ["DELTA_STEP", "fd_slope", "map_chunks", "pad_rows", "scaled_condition",
+           "scaled_pinv"]
 
 #: Step of the central differences of the delta method (unconstrained units).
 DELTA_STEP = 1e-6
@@ -42,3 +44,18 @@ def scaled_pinv(a: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
 def pad_rows(idx: np.ndarray, size: int) -> np.ndarray:
     """``idx`` padded to ``size`` entries by repeating its last one (one compiled shape)."""
     return np.concatenate([idx, np.full(size - idx.size, idx[-1])])
+
+
+def map_chunks(fn: Callable, args, chunk: int):
+    """``fn(*args)`` over the rows of ``args`` (a tuple of pytrees whose leaves share the
+    leading axis, at least one row), ``chunk`` rows per call (the last padded by
+    :func:`pad_rows`: one compiled shape); the outputs (a pytree of arrays) trimmed and
+    concatenated as NumPy arrays."""
+    n = jax.tree_util.tree_leaves(args)[0].shape[0]
+    parts = []
+    for start in range(0, n, chunk):
+        idx = np.arange(start, min(start + chunk, n))
+        rows = pad_rows(idx, chunk)
+        out = fn(*jax.tree_util.tree_map(lambda a, r=rows: a[r], args))
+        parts.append(jax.tree_util.tree_map(lambda o, m=idx.size: np.asarray(o)[:m], out))
+    return jax.tree_util.tree_map(lambda *o: np.concatenate(o), *parts)

@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import pad_rows, scaled_condition
+from frictionfit.fit._numerics import map_chunks, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import choose, flag_gated, statistics, status_of
@@ -610,15 +610,7 @@ def _at_optimum(model: MeasurementModel, free: tuple[int, ...], u_free, data,
     """Data residuals and ``J^T J`` at ``u_free``: ``J^T J`` as the solver left it at its
     solution, computed again only for the rows in ``again`` (relabelled after the fit) or
     where it is not finite; the residuals in chunks of :data:`RESIDUAL_CHUNK` items."""
-    fn = _residuals_fn(model, free)
-    n = u_free.shape[0]
-    resid = []
-    for start in range(0, n, RESIDUAL_CHUNK):
-        idx = np.arange(start, min(start + RESIDUAL_CHUNK, n))
-        rows = pad_rows(idx, RESIDUAL_CHUNK)
-        r = fn(u_free[rows], jax.tree_util.tree_map(lambda a, r=rows: a[r], data))
-        resid.append(np.asarray(r)[: idx.size])
-    resid = np.concatenate(resid) if resid else np.zeros((0, data[0].shape[-1]))
+    resid = map_chunks(_residuals_fn(model, free), (u_free, data), RESIDUAL_CHUNK)
     jtj = np.array(jtj, dtype=np.float64)
     one = _jacobian_fn(model, free)
     for i in np.flatnonzero(again | ~np.all(np.isfinite(jtj), axis=(1, 2))):

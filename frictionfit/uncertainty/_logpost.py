@@ -39,11 +39,17 @@ from frictionfit.fit import Trials
 from frictionfit.fit._noise import ar1_log_likelihood
 from frictionfit.models import ContactModel
 
-__all__ = ["OFFSET_PRIOR_SD_N", "ROW_AXES", "from_sampling", "log_prior", "logp_rows",
-           "on_device", "residuals", "sampling_bounds", "to_sampling"]
+__all__ = ["OFFSET_PRIOR_SD_N", "ROW_AXES", "from_sampling", "log_logistic", "log_prior",
+           "logp_rows", "on_device", "residuals", "sampling_bounds", "to_sampling"]
 
 #: Prior sd of a channel offset, N (sensor offsets are at most tens of N).
 OFFSET_PRIOR_SD_N = 100.0
+
+
+def log_logistic(u):
+    """Log density of the standard logistic at ``u``: the log Jacobian of the logistic map
+    from an unconstrained coordinate to its bounded value (a flat density there)."""
+    return -jax.nn.softplus(u) - jax.nn.softplus(-u)
 
 
 def log_prior(model: ContactModel, u):
@@ -54,7 +60,7 @@ def log_prior(model: ContactModel, u):
         if par.transform == "identity":
             total = total - 0.5 * (uj / OFFSET_PRIOR_SD_N) ** 2
         else:  # standard logistic: uniform on the (log-)span of the bounds
-            total = total - jax.nn.softplus(uj) - jax.nn.softplus(-uj)
+            total = total + log_logistic(uj)
     return total - 0.5 * jnp.sum(model.prior_residuals(u) ** 2, axis=-1)
 
 

@@ -43,7 +43,7 @@ import numpy as np
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import pad_rows
+from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit.measurement import (
     MeasurementData,
     profile_drops,
@@ -52,6 +52,7 @@ from frictionfit.fit.measurement import (
 )
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
+from frictionfit.uncertainty._logpost import log_logistic
 from frictionfit.uncertainty.engine import METHODS, auto_reason, emcee_summary, store_chain
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
@@ -88,8 +89,7 @@ def _unconstrained_density_fn(model: MeasurementModel, free: tuple[int, ...]):
     bounded = jnp.asarray(_bounded(model, free))
 
     def one(u, i, data, s2):
-        log_jac = -jax.nn.softplus(u) - jax.nn.softplus(-u)
-        return density(u, i, data, s2) + jnp.sum(jnp.where(bounded, log_jac, 0.0))
+        return density(u, i, data, s2) + jnp.sum(jnp.where(bounded, log_logistic(u), 0.0))
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
 
@@ -286,7 +286,7 @@ def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
         jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u)
         sig = jax.nn.sigmoid(u)
         lp = -0.5 * jnp.sum(r**2) / s2 + jnp.sum(
-            jnp.where(bounded, -jax.nn.softplus(u) - jax.nn.softplus(-u), 0.0))
+            jnp.where(bounded, log_logistic(u), 0.0))
         grad = -jac.T @ r / s2 + jnp.where(bounded, 1.0 - 2.0 * sig, 0.0)
         hess = jac.T @ jac / s2 + jnp.diag(jnp.where(bounded, 2.0 * sig * (1.0 - sig), 0.0))
         return lp, grad, hess
@@ -334,11 +334,8 @@ def _chunked(f, chunk: int = 128):
 
     def evaluate(x: np.ndarray, idx: np.ndarray, *args) -> np.ndarray:
         size = min(chunk, 1 << (x.shape[0] - 1).bit_length())
-        n = -(-x.shape[0] // size) * size
-        r = pad_rows(np.arange(x.shape[0]), n)
-        out = [np.asarray(f(jnp.asarray(x[r[a:a + size]]), jnp.asarray(idx[r[a:a + size]]),
-                            *args)) for a in range(0, n, size)]
-        return np.concatenate(out)[: x.shape[0]]
+        return map_chunks(lambda xs, ids: f(jnp.asarray(xs), jnp.asarray(ids), *args),
+                          (x, idx), size)
 
     return evaluate
 
