@@ -175,11 +175,12 @@ def residual_fn(model: MeasurementModel, free: tuple[int, ...]):
     ``base`` vector): masked residuals, then the priors scaled by the recording's noise sd
     (so the least-squares optimum is the MAP estimate)."""
     free_idx = jnp.asarray(free)
+    held = tuple(n for j, n in enumerate(model.param_names) if j not in free)
 
     def residual(u_free, data):
         y, weight, t, commands, signs, direction, noise, base = data
         u = base.at[free_idx].set(u_free)
-        pred = model.predict(u, t, commands, signs, direction)
+        pred = model.predict(u, t, commands, signs, direction, held)
         return jnp.concatenate([weight * (pred - y), noise * model.prior_residuals(u)])
 
     return residual

@@ -131,13 +131,16 @@ class MeasurementModel(eqx.Module, NamedParameters):
         v = self.physical(u)
         return _travel(self.stroke_mm, v["delay"], v["ramp"], v["accel"], t, commands, signs)
 
-    def predict(self, u, t, commands, signs, direction):
+    def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = ()):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
-        from rest at ``t[0]``."""
+        from rest at ``t[0]``. ``held``: names of parameters held fixed wherever this is
+        differentiated (their derivative is taken as 0 and not computed)."""
         v = self.physical(u)
         x, speed = self.finger(u, t, commands, signs)
-        theta = jnp.stack([v[n] for n in (*self.law_names, *RIG)])
-        force = _contact_fn(self.law, self.stroke_mm)(theta, t, commands, signs)
+        names = (*self.law_names, *RIG)
+        theta = jnp.stack([v[n] for n in names])
+        varied = tuple(j for j, n in enumerate(names) if n not in held)
+        force = _contact_fn(self.law, self.stroke_mm, varied)(theta, t, commands, signs)
         force = force + v["drag"] * speed
         return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
 
@@ -158,15 +161,16 @@ def _travel(stroke_mm, delay, ramp, accel, t, commands, signs):
     return stroke_mm * (done + sign * pos), stroke_mm / ramp * sign * vel
 
 
-@lru_cache(maxsize=16)
-def _contact_fn(law: str, stroke_mm: float):
+@lru_cache(maxsize=32)
+def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...]):
     """``force(theta, t, commands, signs)`` (N): the contact law driven by the rig, ``theta``
     the law's parameters then :data:`RIG` (physical).
 
-    Its derivative is the Jacobian in ``theta`` times the tangent: a Jacobian of the whole
-    model (``jacfwd``) then pushes only these parameters through the sequential contact
-    simulation, not the sensor's and the drag's, which enter after it (~25 % fewer lanes
-    in the scan). ``t``, ``commands`` and ``signs`` are data: never differentiated.
+    Its derivative is the Jacobian in the ``varied`` entries of ``theta`` times their
+    tangent: a Jacobian of the whole model (``jacfwd``) then pushes only these parameters
+    through the sequential contact simulation, not the sensor's and the drag's, which enter
+    after it, nor the held ones (~25 % fewer lanes in the scan each). ``t``, ``commands``
+    and ``signs`` are data: never differentiated.
     """
     names = LAWS[law]
 
@@ -182,9 +186,10 @@ def _contact_fn(law: str, stroke_mm: float):
     @simulated.defjvp
     def _(primals, tangents):
         theta, t, commands, signs = primals
-        jac, value = jax.jacfwd(lambda th: (force(th, t, commands, signs),) * 2,
-                                has_aux=True)(theta)
-        return value, jac @ tangents[0]
+        idx = jnp.asarray(varied, dtype=int)
+        jac, value = jax.jacfwd(lambda th: (force(theta.at[idx].set(th), t, commands, signs),) * 2,
+                                has_aux=True)(theta[idx])
+        return value, jac @ tangents[0][idx]
 
     return simulated
 
