@@ -194,11 +194,9 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 19  # 19: the session's rig from blocks of 64 recordings
+    _version = 18  # 18: the lateral channels' fitted gain and slip noise
     _view_params = ("with_stderr",)  # the stderrs are stored either way
-    #: Recordings per batched fit: 64 x 2 rubbing channels keep two threads' pools of 16
-    #: refilled (blocks of 16 took 10 % longer), and a session's rig is their median.
-    _block = 64
+    _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
                  model: str = "relaxation2", rig: str = "session",
