@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -78,6 +79,20 @@ def test_relabelled_branches_predict_the_same_force():
     cmd, signs = jnp.array([0.05, 1.05, 2.05, 3.05]), jnp.array([1.0, -1.0, 1.0, -1.0])
     np.testing.assert_allclose(model.predict(jnp.asarray(swapped), t, cmd, signs, 1.0),
                                model.predict(jnp.asarray(u), t, cmd, signs, 1.0), atol=1e-9)
+
+
+def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
+    model = MeasurementModel("relaxation2")
+    u = jnp.asarray(to_unconstrained(model, {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3,
+                                             "relax_frac": 0.2, "tau": 0.1, "delay": 0.01}))
+    t = jnp.arange(2500) / 1000.0
+    cmd, signs = jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
+    rig = ("delay", "ramp", "accel")
+    full = jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0))(u)
+    held = jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0, rig))(u)
+    free = [j for j, n in enumerate(model.param_names) if n not in rig]
+    assert np.abs(full[:, free]).max() > 0
+    np.testing.assert_allclose(held[:, free], full[:, free], rtol=1e-10, atol=1e-12)
 
 
 @pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])

@@ -196,7 +196,10 @@ class PhysicalFeatures(RecordingFeatures):
 
     _version = 18  # 18: the lateral channels' fitted gain and slip noise
     _view_params = ("with_stderr",)  # the stderrs are stored either way
-    _block = 16  # recordings per batched fit (16 x 4 motions x 4 channels = 256 trials)
+    #: Recordings per batched fit. With ``rig="session"`` the rig is the median over a
+    #: block's recordings of one session, so the block changes the features: blocks of 64
+    #: (the rig from more materials) scored lower on the lab stand-in (decisions.md).
+    _block = 16
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
                  model: str = "relaxation2", rig: str = "session",

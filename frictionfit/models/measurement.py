@@ -133,8 +133,8 @@ class MeasurementModel(eqx.Module, NamedParameters):
 
     def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = ()):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
-        from rest at ``t[0]``. ``held``: names of parameters held fixed wherever this is
-        differentiated (their derivative is taken as 0 and not computed)."""
+        from rest at ``t[0]``. ``held``: names of parameters a fit holds fixed: the contact
+        simulation's Jacobian leaves them out (their derivative through it is taken as 0)."""
         v = self.physical(u)
         x, speed = self.finger(u, t, commands, signs)
         names = (*self.law_names, *RIG)
