@@ -54,12 +54,12 @@ print(len(recs), "measurements of", len(CLASSES), "classes in 2 sessions")
 # curve); `fitted` is the contact law's parameters alone, from one whole-measurement fit
 # per recording of each channel along the rubbing direction (`thumb_x`, `index_x`: rig,
 # sensor and law fitted once each), and each lateral channel's law on its finger's fitted
-# force (`thumb_y`, `index_y`: the lateral share and its stick-slip); `physical (all)` is both (`fitted=True`). The data
-# span two sessions, so `evaluate` asks for the LDA projection between the scaler and the SVM
-# (`projection_for`), but with one training day of 36 recordings in 12 classes there are
-# too few rows for the within-class covariance of 88 features, and the projection steps
-# aside (`DiscriminantProjection`). Rows are cached by recording content, so the second
-# fold and the later cells reuse them.
+# force (`thumb_y`, `index_y`: the lateral share and its stick-slip); `physical (all)` is
+# both (`fitted=True`). The data span two sessions, so `evaluate` asks for the LDA
+# projection between the scaler and the SVM (`projection_for`), but with one training day of 36
+# recordings in 12 classes there are too few rows for the within-class covariance of 88 features,
+# and the projection steps aside (`DiscriminantProjection`). Rows are cached by recording content,
+# so the second fold and the later cells reuse them.
 
 # %%
 FEATURE_SETS = {"physical": None, "fitted": None,
