@@ -169,8 +169,9 @@ def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...]):
     Its derivative is the Jacobian in the ``varied`` entries of ``theta`` times their
     tangent: a Jacobian of the whole model (``jacfwd``) then pushes only these parameters
     through the sequential contact simulation, not the sensor's and the drag's, which enter
-    after it, nor the held ones (~25 % fewer lanes in the scan each). ``t``, ``commands``
-    and ``signs`` are data: never differentiated.
+    after it (~25 % fewer lanes in the scan), nor the held ones (a held rig halves the
+    simulation's Jacobian: the drive's tangent is its costliest). ``t``, ``commands`` and
+    ``signs`` are data: never differentiated.
     """
     names = LAWS[law]
 
