@@ -112,3 +112,12 @@ def test_fitted_gain_of_a_lateral_channel_proportional_to_the_rubbing_one():
     assert row["index_y:fit_gain [1]"] == pytest.approx(-0.25, abs=0.01)
     assert 0 < row["index_y:fit_gain_stderr [1]"] < 0.01
     assert np.isfinite(row["index_y:fit_slip_noise [log10 N]"])
+
+
+def test_a_recordings_fitted_features_do_not_depend_on_what_is_featurised_with_it():
+    recs = simulate_measurements([(1, "carpet-1", 1), (1, "paper-2", 1), (1, "scarf-1", 1)],
+                                 seed=7)
+    together = FittedFeatures(cache=False).fit_transform(recs)
+    alone = FittedFeatures(cache=False).fit_transform(recs[1:2])
+    assert np.isfinite(alone).all()
+    np.testing.assert_allclose(alone[0], together[1], rtol=1e-6, atol=1e-9)
