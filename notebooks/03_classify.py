@@ -238,15 +238,16 @@ top.round(3)
 # fitted contact law alone (`fitted`: stiffness, static friction level, held force,
 # stick-slip intensity, relaxation and drag of the two rubbing channels, each recording
 # fitted whole, and each lateral channel's share of the fitted force and its stick-slip)
-# and all physical features together both score 0.64 (folds 0.58 / 0.69 and 0.56 /
-# 0.72), ahead of the measured contact quantities (`physical`, 0.57), handcrafted (0.35),
-# FFT bins (0.31) and raw signals (0.24). Every physical set gets the layer count right
+# scores 0.64 (folds 0.67 / 0.61) and all physical features together 0.61 (0.56 / 0.67),
+# ahead of the measured contact quantities (`physical`, 0.57), handcrafted (0.35), FFT
+# bins (0.31) and raw signals (0.24). Every physical set gets the layer count right
 # (1.00), and most errors fall inside the designed look-alike pairs (curtain-rose vs
 # curtain-white, paper-2 vs banknote-2 and pe-bag-2). With all physical features the SVM
-# leans on the onset rates, the peak times, the relaxation curve and the fitted peak
-# force, onset rate and static level. On the lab stand-in, whose physics is not the
-# model's, the fitted parameters win too (0.952 against 0.940 leave-one-session-out on
-# three days, 0.967 together); `physical` stays the default because it needs no fit. With
+# leans on the measured peak times, onset rates, relaxation curve and slip ripple; no
+# fitted quantity is among its ten most relied on. On the lab stand-in, whose physics is not the
+# model's, the fitted parameters alone score as the measured quantities do (0.940
+# leave-one-session-out on three days) and together they score best (0.967); `physical`
+# stays the default because it needs no fit. With
 # one training day the LDA projection stepped aside (too few rows); on the lab stand-in,
 # with two or three training days, it is what lifts physical features above the
 # hand-crafted baseline.
@@ -259,9 +260,11 @@ top.round(3)
 # the probability instead of hiding in a confident label.
 #
 # The fit's own posterior reaches the call too. The least certain fit of session 2
-# (pe-bag-2, stderrs about a third of the spread between training recordings, against
-# an eighth for the median recording) shows why: its sensor offset and leak trade off,
-# its stiffness is known to 36 % and its fast relaxation branch is not distinguishable
-# from none. From point values its fitted features call it paper-2 (0.154 against 0.146
-# for the true pe-bag-2); drawn from that posterior, the true class gets 0.168 and the
-# call turns to it, with the look-alikes close behind: a doubtful fit gives a close call.
+# (saran-wrap-1, stderrs about 0.4 of the spread between training recordings, against
+# 0.18 for the median recording) shows why: its stiffness is not identified (stderr
+# larger than the value), its fast relaxation branch is not distinguishable from none
+# and its second branch sits at its bound. Its fitted features do not point to its
+# class: from point values the top classes are banknote-1 and pe-bag-2 (0.134 each);
+# drawn from that posterior the probabilities shift (banknote-1 0.161, pe-bag-2 0.149)
+# but stay low, and the true class is not among the six most probable. A doubtful fit
+# gives a low top probability, which `--abstain` turns into no call.
