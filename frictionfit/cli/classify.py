@@ -9,8 +9,10 @@ import typer
 from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
-FEATURES_HELP = ("Feature set(s): physical, handcrafted, fftbins, spectral, raw, gesture, touch, "
-                 "shortcut; a comma list concatenates them.")
+FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
+                 "law fitted to each recording), handcrafted, fftbins, spectral, raw, gesture, "
+                 "touch, shortcut; a comma list concatenates them (physical,fitted: the most "
+                 "accurate on rubbing recordings, with a fit per recording).")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
                 "within-class scatter), none, or auto: lda when the data span several sessions.")
