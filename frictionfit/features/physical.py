@@ -172,7 +172,7 @@ class PhysicalFeatures(RecordingFeatures):
     rig : {"recording", "session"}, default "recording"
         Where the motor's timing is fitted: per recording (its features depend on it
         alone), or once per session: the median over the session's recordings that share
-        a batch of :attr:`_block` (a lone recording has its own), so a recording's
+        a batch (64 recordings; a lone recording has its own), so a recording's
         features then depend on which recordings are featurised with it. On the lab
         stand-in ``"session"`` scored 0.952 alone (0.967 with the measured quantities) in
         batches of 16 recordings, 0.924 (0.955) in batches of 64 (decisions.md).
