@@ -111,7 +111,7 @@ pd.DataFrame(rows).round(4)
 # `k` and the movement duration trade off, and it starts from rest though the previous
 # stroke left a held force. `fit_measurements` fits the recording whole instead: one
 # motor (delay, movement duration, acceleration share of a trapezoid velocity profile,
-# and each movement's own latency deviation), one sensor (offset, drift, a leak with the
+# and each movement's own latency and duration), one sensor (offset, drift, a leak with the
 # finger's travel) and one contact law (`relaxation2`: two Maxwell branches, plus a sliding
 # drag), the law's state carried from stroke to stroke. The first motion is simulated but
 # not fitted (it starts from the unknown state the closing of the fingers left).

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -151,6 +153,33 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
                    .index("k")]
     slope = (PARAMS["k"].to_physical(u_k + h) - PARAMS["k"].to_physical(u_k - h)) / (2 * h)
     assert res.stderr[0]["k"] == pytest.approx(abs(slope) * np.sqrt(res.cov[0][j, j]), rel=1e-5)
+
+
+def test_each_movements_latency_and_duration_found(simulated):
+    """Data from the model itself, every movement with its own onset and duration: the fit
+    finds both, and the law."""
+    rec = simulated[0]
+    commands, signs = measurement_data(rec, "index_x").drive[:2]
+    model = MeasurementModel("relaxation2")
+    truth = {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3, "relax_frac": 0.3, "tau": 0.08,
+             "relax_frac2": 0.1, "tau2": 1.0, "delay": 0.02, "ramp": 0.12}
+    rng = np.random.default_rng(3)
+    shift = rng.uniform(-0.004, 0.004, commands.size)
+    stretch = np.exp(rng.uniform(-0.05, 0.05, commands.size))
+    y = model.predict(jnp.asarray(to_unconstrained(model, truth)), rec.t, commands + shift,
+                      signs, 1.0, stretch=stretch)
+    samples = rec.samples.copy()
+    samples[:, rec.channel_names.index("index_x")] = y + 0.002 * rng.standard_normal(y.size)
+    d = measurement_data(dataclasses.replace(rec, samples=samples), "index_x")
+    res = fit_measurements([d], model=model, progress=False)
+    found_commands, _, found_stretch = res.drive_input[0]
+    fitted = slice(2, None)  # the first motion is simulated, not fitted
+    onset = found_commands + res.values[0]["delay"] - (commands + shift + truth["delay"])
+    assert np.max(np.abs(onset[fitted])) < 0.0005, onset  # s
+    duration = found_stretch * res.values[0]["ramp"] / (stretch * truth["ramp"])
+    assert np.max(np.abs(duration[fitted] - 1)) < 0.01, duration
+    for name in ("k", "f_kin", "f_static_excess", "relax_frac", "tau"):
+        assert res.values[0][name] == pytest.approx(truth[name], rel=0.03), name
 
 
 def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):

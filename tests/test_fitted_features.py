@@ -32,7 +32,8 @@ def _lateral(seed: int, noise: float, shaking: float = 0.0):
     u = to_unconstrained(MODEL, {"k": 20.0, "f_kin": 1.0, "f_static_excess": 0.3,
                                  "relax_frac": 0.3, "tau": 0.2, "offset": 0.7, "leak": 0.1})
     commands, signs, t = _drive()
-    force, travel = (np.asarray(a) for a in regressors(MODEL)(u, t, commands, signs, -1.0))
+    force, travel = (np.asarray(a) for a in regressors(MODEL)(u, t, commands, signs,
+                                                                    np.ones_like(commands), -1.0))
     rng = np.random.default_rng(seed)
     e = rng.standard_normal(t.size) * noise
     for i in range(1, t.size):  # AR(1) noise, as the lab's residuals are
@@ -55,7 +56,7 @@ def test_lateral_law_recovered_with_its_stderr():
     z = []
     for seed in range(8):
         u, commands, signs, d = _lateral(seed, noise=0.01)
-        got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+        got = fit_lateral(MODEL, u, d.drive, -1.0, d)
         values, stderr = ({n: v[j] for n, v in got.items()} for j in (0, 1))
         assert values["gain"] == pytest.approx(TRUTH["gain"], abs=0.01)
         assert values["leak"] == pytest.approx(TRUTH["leak"], abs=0.01)
@@ -66,7 +67,7 @@ def test_lateral_law_recovered_with_its_stderr():
 
 def test_lateral_law_without_noise_is_exact():
     u, commands, signs, d = _lateral(0, noise=0.0)
-    got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+    got = fit_lateral(MODEL, u, d.drive, -1.0, d)
     assert [got[n][0] for n in LATERAL] == pytest.approx([TRUTH[n] for n in LATERAL], abs=1e-8)
     assert got["slip_noise"][0] == pytest.approx(0.0, abs=1e-6)
 
@@ -75,17 +76,17 @@ def test_lateral_slip_noise_measures_shaking_the_law_cannot_follow():
     amplitude = 0.02  # N
     expected = _band_rms(amplitude * np.sin(2 * np.pi * 70.0 * np.arange(0.0, SLIP_S, 1e-3)))
     u, commands, signs, d = _lateral(1, noise=0.001, shaking=amplitude)
-    noise, se = fit_lateral(MODEL, u, commands, signs, -1.0, d)["slip_noise"]
+    noise, se = fit_lateral(MODEL, u, d.drive, -1.0, d)["slip_noise"]
     assert noise == pytest.approx(expected, rel=0.2)
     assert 0 < se < 0.2 * noise
     u, commands, signs, d = _lateral(1, noise=0.001)
-    assert fit_lateral(MODEL, u, commands, signs, -1.0, d)["slip_noise"][0] < 0.2 * expected
+    assert fit_lateral(MODEL, u, d.drive, -1.0, d)["slip_noise"][0] < 0.2 * expected
 
 
 def test_lateral_law_with_too_few_blocks_is_nan():
     u, commands, signs, d = _lateral(0, noise=0.01)
     d = dataclasses.replace(d, weight=np.where(d.t < 0.01, 1.0, 0.0))
-    got = fit_lateral(MODEL, u, commands, signs, -1.0, d)
+    got = fit_lateral(MODEL, u, d.drive, -1.0, d)
     assert all(np.isnan(v) for pair in got.values() for v in pair)
 
 

@@ -151,31 +151,36 @@ def _row(data: tuple, i: int) -> tuple:
 
 
 def numpy_predict(model: MeasurementModel, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
-                  signs: np.ndarray, direction: float) -> np.ndarray:
+                  signs: np.ndarray, direction: float, stretch: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Plain NumPy twin of ``model.predict``: the channel (N) at increasing times ``t`` (s).
 
     ``commands`` (s, increasing; each movement's own latency included where fitted) and
-    ``signs`` (+1 out, -1 back) of the ``move`` events. The law is
+    ``signs`` (+1 out, -1 back) of the ``move`` events; ``stretch``: each movement's
+    duration over ``ramp`` (default 1). The law is
     :func:`~frictionfit.bench.fit.numpy_contact_force`, one loop over the whole measurement,
     so every stroke starts from the state the previous one left.
     """
     v = {p.name: p.to_physical(np.float64(u[i])) for i, p in enumerate(model.params)}
-    x, speed = _finger(v, t, commands, signs, model.stroke_mm)
+    stretch = np.ones_like(commands) if stretch is None else stretch
+    x, speed = _finger(v, t, commands, signs, stretch, model.stroke_mm)
     dt = np.diff(t, prepend=2.0 * t[0] - t[1])
     force = numpy_contact_force(x, dt, v) + v["drag"] * speed
     return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
 
 
-def _finger(v: dict, t, commands, signs, stroke_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def _finger(v: dict, t, commands, signs, stretch, stroke_mm: float
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Finger travel (mm) and velocity (mm/s): the simulator's trapezoid movement
     (:func:`~frictionfit.simulation.measurements.motor_profile`) of each command, ``delay``
     after it, until the next command."""
     last = np.searchsorted(commands, t, side="right") - 1  # -1: before the first command
     done = np.r_[0.0, np.cumsum(signs)]
     x, speed = np.zeros_like(t), np.zeros_like(t)
-    for i, (command, sign) in enumerate(zip(commands, signs, strict=True)):
+    for i, (command, sign, factor) in enumerate(zip(commands, signs, stretch, strict=True)):
         now = last == i  # each movement ends before the next command
-        pos, vel = motor_profile(t[now], command + v["delay"], v["ramp"], v["accel"] * v["ramp"])
+        ramp = v["ramp"] * factor
+        pos, vel = motor_profile(t[now], command + v["delay"], ramp, v["accel"] * ramp)
         x[now] = stroke_mm * (done[i] + sign * pos)
         speed[now] = stroke_mm * sign * vel
     return x, speed
@@ -184,5 +189,6 @@ def _finger(v: dict, t, commands, signs, stroke_mm: float) -> tuple[np.ndarray, 
 def numpy_residual(model: MeasurementModel, u: np.ndarray, d: MeasurementData) -> np.ndarray:
     """The residual :func:`~frictionfit.fit.measurement.fit_measurements` minimises, in plain
     NumPy: weighted block residuals, then the prior rows scaled by the noise sd (N)."""
-    pred = numpy_predict(model, u, d.t, d.commands, d.signs, d.direction)
+    commands, signs, stretch = d.drive
+    pred = numpy_predict(model, u, d.t, commands, signs, d.direction, stretch)
     return np.concatenate([d.weight * (pred - d.y), d.noise * model.prior_residuals(u)])

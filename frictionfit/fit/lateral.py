@@ -46,36 +46,38 @@ MIN_BLOCKS = 20
 
 @lru_cache(maxsize=16)
 def _regressors_fn(model: MeasurementModel):
-    """Jitted ``(u, t, commands, signs, direction) -> (F, x)``: the fitted contact force as
-    the rubbing channel sees it (N; sensor terms zeroed) and the finger travel (mm)."""
+    """Jitted ``(u, t, commands, signs, stretch, direction) -> (F, x)``: the fitted contact
+    force as the rubbing channel sees it (N; sensor terms zeroed) and the finger travel (mm)."""
     sensor = jnp.array([model.param_names.index(n) for n in ("offset", "drift", "leak")])
 
-    def regressors(u, t, commands, signs, direction):
-        force = model.predict(u.at[sensor].set(0.0), t, commands, signs, direction)
-        travel, _ = model.finger(u, t, commands, signs)
+    def regressors(u, t, commands, signs, stretch, direction):
+        force = model.predict(u.at[sensor].set(0.0), t, commands, signs, direction,
+                              stretch=stretch)
+        travel, _ = model.finger(u, t, commands, signs, stretch)
         return force, travel
 
     return jax.jit(regressors)
 
 
-def fit_lateral(model: MeasurementModel, u: np.ndarray, commands: np.ndarray,
-                signs: np.ndarray, direction: float, lateral: MeasurementData
-                ) -> dict[str, tuple[float, float]]:
+def fit_lateral(model: MeasurementModel, u: np.ndarray, drive: tuple, direction: float,
+                lateral: MeasurementData) -> dict[str, tuple[float, float]]:
     """Name -> ``(value, stderr)`` of :data:`LATERAL` and ``slip_noise`` for one lateral
     channel (module notes).
 
-    ``model``, ``u`` (unconstrained), ``commands`` (s, with each movement's latency),
-    ``signs`` and ``direction``: the rubbing channel's fit; ``lateral``: the lateral
-    channel's blocks (:func:`~frictionfit.fit.measurement.measurement_data`). NaN where fewer
-    than :data:`MIN_BLOCKS` blocks are fitted or the regressors are degenerate.
+    ``model``, ``u`` (unconstrained), ``drive`` (the fit's ``drive_input``: ``commands`` in
+    s with each movement's latency, ``signs``, each movement's ``stretch``) and
+    ``direction``: the rubbing channel's fit; ``lateral``: the lateral channel's blocks
+    (:func:`~frictionfit.fit.measurement.measurement_data`). NaN where fewer than
+    :data:`MIN_BLOCKS` blocks are fitted or the regressors are degenerate.
     """
     t, weight = lateral.t, lateral.weight
     fitted = weight > 0
     nan = {n: (np.nan, np.nan) for n in LATERAL_UNITS}
     if fitted.sum() < MIN_BLOCKS or not np.all(np.isfinite(u)):
         return nan
+    commands, signs, stretch = (np.asarray(a, dtype=np.float64) for a in drive)
     force, travel = (np.asarray(a) for a in _regressors_fn(model)(
-        jnp.asarray(u), jnp.asarray(t), jnp.asarray(commands), jnp.asarray(signs),
+        jnp.asarray(u), jnp.asarray(t), commands, signs, stretch,
         jnp.asarray(direction, dtype=jnp.float64)))
     a = np.stack([np.ones_like(t), t - t[0], travel, force], axis=1) * weight[:, None]
     b = np.where(fitted, lateral.y, 0.0) * weight

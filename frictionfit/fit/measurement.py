@@ -7,8 +7,8 @@ moves, blocks of 10 while it holds. :func:`fit_measurements` fits
 Levenberg-Marquardt :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt` in the
 pool driver :func:`~frictionfit.fit._optx.solve_pooled` (pools of recordings, slots
 refilled): a first fit on blocks merged in pairs (each law of ``"auto"``, the larger from
-the smaller's optimum; the law by BIC), then each movement's own latency and, optionally,
-the session's rig held, and a second fit on the full grid. The first ``skip_motions``
+the smaller's optimum; the law by BIC), then each movement's own latency and duration and,
+optionally, the session's rig held, and a second fit on the full grid. The first ``skip_motions``
 motions are simulated (they set the contact's state) but not fitted: closing the fingers
 leaves an unknown internal force.
 """
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -57,8 +58,9 @@ class MeasurementData:
     ``y`` (N): block means at times ``t`` (s, increasing, not uniform); ``weight``: the
     square root of each block's sample count (0: not fitted); ``noise``: the sd (N) of one
     sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
-    ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1) and
-    the recording's ``session`` (metadata; ``None`` when absent).
+    ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1),
+    the recording's ``session`` (metadata; ``None`` when absent) and ``stretch``: each
+    movement's duration over the rig's ``ramp`` (``None``: 1 for all).
     """
 
     name: str
@@ -72,11 +74,18 @@ class MeasurementData:
     direction: float
     guess: dict
     session: object = None
+    stretch: np.ndarray | None = None
 
     @property
     def mask(self) -> np.ndarray:
         """The blocks the fit uses."""
         return self.weight > 0
+
+    @property
+    def drive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(commands, signs, stretch)``: what moves the finger (the model's drive data)."""
+        stretch = np.ones_like(self.commands) if self.stretch is None else self.stretch
+        return self.commands, self.signs, stretch
 
 
 def _move_signs(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
@@ -178,9 +187,9 @@ def residual_fn(model: MeasurementModel, free: tuple[int, ...]):
     held = tuple(n for j, n in enumerate(model.param_names) if j not in free)
 
     def residual(u_free, data):
-        y, weight, t, commands, signs, direction, noise, base = data
+        y, weight, t, commands, signs, stretch, direction, noise, base = data
         u = base.at[free_idx].set(u_free)
-        pred = model.predict(u, t, commands, signs, direction, held)
+        pred = model.predict(u, t, commands, signs, direction, held, stretch)
         return jnp.concatenate([weight * (pred - y), noise * model.prior_residuals(u)])
 
     return residual
@@ -202,6 +211,7 @@ def stack_items(items: Sequence[MeasurementData], base: np.ndarray):
                                                  np.full(m - d.commands.size, 1e9)]
                       for d in items]),  # padding commands never come
             np.stack([pad(d.signs, m) for d in items]),
+            np.stack([np.r_[d.drive[2], np.ones(m - d.commands.size)] for d in items]),
             np.array([d.direction for d in items]), np.array([d.noise for d in items]), base)
 
 
@@ -229,8 +239,9 @@ def fit_measurements(
     ``rig="session"``: hold the rig's :data:`RIG` parameters at their median over each
     session's converged first fits and fit again (the motor is the same for every recording
     of a day). ``timing="movement"``: shift each movement's command by its own latency
-    deviation (found per movement at the first optimum) and fit again; ``"rig"``: one
-    latency for all. ``fix``: name -> physical value (one, or one per item) held fixed.
+    deviation and stretch its duration by its own factor (both found per movement at the
+    first optimum) and fit again; ``"rig"``: one latency and duration for all. ``fix``:
+    name -> physical value (one, or one per item) held fixed.
     ``u0``: unconstrained starting points (of the first law; default: the data's guess).
     With a second fit, every law is fitted again on the full grid (the first grid's merged
     blocks blur a static peak into a fast relaxation) and the law chosen there.
@@ -303,13 +314,13 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
         for i, d in enumerate(items):
             if result.model[i] != name:
                 continue
-            commands = np.asarray(result.drive_input[i][0])
-            outs = commands[result.drive_input[i][1] > 0]
+            commands, signs, stretch = (np.asarray(a) for a in result.drive_input[i])
+            outs = commands[signs > 0]
             for m, (a, b) in enumerate(zip(outs, [*outs[1:], np.inf], strict=True)):
                 weight = np.where((d.t >= a) & (d.t < b), d.weight, 0.0)
                 if np.count_nonzero(weight) < MIN_MOTION_BLOCKS:
                     continue  # the preparatory motion, or one with too few usable blocks
-                sub.append(replace(d, commands=commands, weight=weight))
+                sub.append(replace(d, commands=commands, stretch=stretch, weight=weight))
                 starts.append(result.u[i])
                 for n in SETUP:
                     fixed[n].append(result.values[i][n])
@@ -361,6 +372,15 @@ def _in_order(parts: list[FitResult], chosen: np.ndarray) -> FitResult:
 #: Per-movement onset shifts searched (s): the motor's latency jitters from one command to
 #: the next (serial link, controller loop); a shared delay would smear every static peak.
 SHIFTS_S = np.arange(-8.0, 8.25, 0.5) * 1e-3
+#: Damped Gauss-Newton steps refining every movement's onset and duration together, after
+#: the onset search: the movement time jitters too. The data fix one combination of the
+#: two sharply (the static peak's time) and the other loosely, so a grid search on one then
+#: the other stops on the side of that valley (docs/decisions.md).
+TIMING_STEPS = 4
+#: Largest change of one movement's onset (s) and log duration in one refining step.
+TIMING_STEP_MAX = (0.002, 0.05)
+#: ... and the relative cost decrease below which the refining stops.
+TIMING_FTOL = 1e-6
 
 
 @lru_cache(maxsize=8)
@@ -379,23 +399,74 @@ def _window_costs_fn(model: MeasurementModel):
     return jax.jit(costs)
 
 
+@lru_cache(maxsize=8)
+def _timing_normal_fn(model: MeasurementModel):
+    """Jitted ``(u, y, weight, t, commands, signs, stretch, direction) -> (cost, J^T J, J^T
+    r)``: the weighted least-squares cost (data rows) and its normal equations in every
+    movement's onset shift (s) then log duration factor, at zero."""
+    def normal(u, y, weight, t, commands, signs, stretch, direction):
+        m = commands.shape[0]
+
+        def resid(z):
+            pred = model.predict(u, t, commands + z[:m], signs, direction,
+                                 stretch=stretch * jnp.exp(z[m:]), timing_derivatives=True)
+            return weight * (pred - y)
+
+        jac, r = jax.jacfwd(lambda z: (resid(z),) * 2, has_aux=True)(jnp.zeros(2 * m))
+        return 0.5 * r @ r, jac.T @ jac, jac.T @ r
+
+    return jax.jit(normal)
+
+
+def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """One item's command times and duration factors (module notes): the onset shift in
+    :data:`SHIFTS_S` that fits each fine window best at ``u``, then :data:`TIMING_STEPS`
+    Levenberg-Marquardt steps in every movement's onset and log duration together; both
+    relative to their median over the fitted movements (``delay`` and ``ramp`` keep the
+    typical movement)."""
+    cost = np.asarray(_window_costs_fn(model)(jnp.asarray(u), d.y, d.weight, d.t, d.commands,
+                                              d.signs, d.direction))
+    seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
+    commands = d.commands + np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
+    stretch = np.ones_like(commands)
+    normal = _timing_normal_fn(model)
+    m, lam = commands.size, 1e-3
+    limit = np.repeat(TIMING_STEP_MAX, m)
+    here = [np.asarray(a) for a in normal(jnp.asarray(u), d.y, d.weight, d.t, commands,
+                                          d.signs, stretch, d.direction)]
+    for _ in range(TIMING_STEPS):
+        c, jtj, g = here
+        diag = np.diagonal(jtj)
+        a = jtj + np.diag(lam * diag + 1e-12 * max(diag.max(), 1e-300))
+        z = np.clip(-np.linalg.solve(a, g), -limit, limit)
+        cand = (commands + z[:m], stretch * np.exp(z[m:]))
+        there = [np.asarray(a) for a in normal(jnp.asarray(u), d.y, d.weight, d.t, cand[0],
+                                               d.signs, cand[1], d.direction)]
+        if there[0] <= c:
+            (commands, stretch), here, lam = cand, there, lam / 3.0
+            if c - there[0] <= TIMING_FTOL * c:
+                break
+        else:
+            lam *= 10.0
+    if seen.any():
+        commands = commands - np.median((commands - d.commands)[seen])
+        stretch = stretch / np.exp(np.median(np.log(stretch[seen])))
+    return commands, np.where(seen, stretch, 1.0)
+
+
 def _with_movement_timing(models: list[MeasurementModel], chosen: np.ndarray,
                           items: Sequence[MeasurementData], result: FitResult
                           ) -> list[MeasurementData]:
-    """Items whose command times carry each movement's own latency deviation: per fine
-    window, the shift in :data:`SHIFTS_S` that fits it best at the first fit's optimum
-    (of the item's chosen model), minus their median (``delay`` keeps the typical latency)."""
-    out = []
-    for d, u, j in zip(items, result.u, chosen, strict=True):
-        fn = _window_costs_fn(models[j])
-        cost = np.asarray(fn(jnp.asarray(u), d.y, d.weight, d.t, d.commands, d.signs,
-                             d.direction))
-        seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
-        shift = np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
-        if seen.any():
-            shift[seen] -= np.median(shift[seen])
-        out.append(replace(d, commands=d.commands + shift))
-    return out
+    """Items whose drive carries each movement's own onset and duration
+    (:func:`_movement_timing` at the first fit's optimum of the item's chosen model; items
+    in host threads, one per core)."""
+    def timed(i):
+        commands, stretch = _movement_timing(models[chosen[i]], result.u[i], items[i])
+        return replace(items[i], commands=commands, stretch=stretch)
+
+    with ThreadPoolExecutor(max_workers=available_cores()) as pool:
+        return list(pool.map(timed, range(len(items))))
 
 
 def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[str, np.ndarray]:
@@ -478,12 +549,12 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         model=[model.name] * len(items), values=stats["values"], stderr=stats["stderr"],
         flags=stats["flags"], status=status.astype(np.int64), chi2=stats["chi2"],
         redchi=stats["redchi"], aic=stats["aic"], bic=stats["bic"], r2=r2, cond=cond,
-        n_steps=steps, u=list(u), direction=data[5], drive="measurement",
-        drive_input=[(d.commands, d.signs) for d in items],
+        n_steps=steps, u=list(u), direction=data[6], drive="measurement",
+        drive_input=[d.drive for d in items],
         init=[_physical_init(model, d.guess) for d in items],
         correl=stats["correl"], cov=list(stats["cov"]), stroke_mm=model.stroke_mm,
         priors=_prior_dict(model),
-        derived=(derived_quantities(model, free, u, stats["cov"], resid, items, data[5])
+        derived=(derived_quantities(model, free, u, stats["cov"], resid, items, data[6])
                  if final else None))
 
 

@@ -42,7 +42,8 @@ class FitResult:
         The solver used; ``n_starts`` the number of starting points per trial.
     direction, drive_input, drive, stroke_mm, priors
         What :meth:`predict` needs to recompute a trial's fitted curve (``drive="measurement"``:
-        ``drive_input[i]`` holds the move commands, s, and their signs), and the
+        ``drive_input[i]`` holds the move commands, s, their signs and each movement's
+        duration over ``ramp``), and the
         ``priors=`` the fit was given (``None``: the parameters' defaults).
     init : list of dict, optional
         Per trial, the starting point in physical units (the data-driven guess).
@@ -128,10 +129,10 @@ class FitResult:
         if self.direction is None or self.drive_input is None:
             raise ValueError("this FitResult does not carry its drive; refit with fit_trials")
         member = self.member(i)
-        if self.drive == "measurement":  # the move commands (each movement's own latency) and signs
-            commands, signs = (jnp.asarray(a) for a in self.drive_input[i])
+        if self.drive == "measurement":  # move commands, signs, each movement's stretch
+            commands, signs, stretch = (jnp.asarray(a) for a in self.drive_input[i])
             return np.asarray(member.predict(jnp.asarray(self.u[i]), jnp.asarray(t), commands,
-                                             signs, self.direction[i]))
+                                             signs, self.direction[i], stretch=stretch))
         if self.drive == "events":
             drive_i = (self.drive_input[0][i], self.drive_input[1][i])
         else:

@@ -5,7 +5,8 @@ live at three levels, and this model gives each one value per measurement:
 
 - **rig**: the motor's ``delay`` after each ``move`` command, the movement duration
   ``ramp`` and the share ``accel`` of it spent accelerating (and as long braking):
-  a trapezoid velocity profile, the same for every movement;
+  a trapezoid velocity profile; each movement's own onset and duration around them are
+  data (the command times and ``stretch``, which the fit finds movement by movement);
 - **sensor**: the channel's ``offset``, its slow ``drift`` (N/s) and a ``leak`` (N per
   mm of finger travel: normal force leaking into the channel as the finger moves);
 - **material**: one contact law (:func:`~frictionfit.models.stick_slip.contact_force`)
@@ -120,27 +121,35 @@ class MeasurementModel(eqx.Module, NamedParameters):
             return own | {n: p for n, p in PRIORS.items() if n in self.param_names}
         return {n: (c, sd) for n, c, sd in self.priors}
 
-    def finger(self, u, t, commands, signs):
+    def finger(self, u, t, commands, signs, stretch=None):
         """Finger travel (mm) and velocity (mm/s) at times ``t`` (s).
 
         ``commands``: the ``move`` command times (s, increasing); ``signs``: +1 for a move
-        out, -1 for a move back, 0 for padding. Each movement ends before the next command
-        (as in the rubbing protocol), so at any time at most the last one commanded is
-        under way and only that one is evaluated.
+        out, -1 for a move back, 0 for padding; ``stretch``: each movement's duration over
+        ``ramp`` (default: 1 for all). Each movement ends before the next command (as in
+        the rubbing protocol), so at any time at most the last one commanded is under way
+        and only that one is evaluated.
         """
         v = self.physical(u)
-        return _travel(self.stroke_mm, v["delay"], v["ramp"], v["accel"], t, commands, signs)
+        return _travel(self.stroke_mm, v["delay"], v["ramp"], v["accel"], t, commands, signs,
+                       _ones_if_none(stretch, commands))
 
-    def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = ()):
+    def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = (),
+                stretch=None, timing_derivatives: bool = False):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
         from rest at ``t[0]``. ``held``: names of parameters a fit holds fixed: the contact
-        simulation's Jacobian leaves them out (their derivative through it is taken as 0)."""
+        simulation's Jacobian leaves them out (their derivative through it is taken as 0).
+        ``stretch``: as for :meth:`finger`. ``timing_derivatives``: differentiable in
+        ``commands`` and ``stretch`` too (otherwise data), every input pushed through the
+        simulation (slower; to find each movement's timing)."""
         v = self.physical(u)
-        x, speed = self.finger(u, t, commands, signs)
+        stretch = _ones_if_none(stretch, commands)
+        x, speed = self.finger(u, t, commands, signs, stretch)
         names = (*self.law_names, *RIG)
         theta = jnp.stack([v[n] for n in names])
-        varied = tuple(j for j, n in enumerate(names) if n not in held)
-        force = _contact_fn(self.law, self.stroke_mm, varied)(theta, t, commands, signs)
+        varied = (None if timing_derivatives
+                  else tuple(j for j, n in enumerate(names) if n not in held))
+        force = _contact_fn(self.law, self.stroke_mm, varied)(theta, t, commands, signs, stretch)
         force = force + v["drag"] * speed
         return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
 
@@ -150,46 +159,57 @@ class MeasurementModel(eqx.Module, NamedParameters):
 RIG = ("delay", "ramp", "accel")
 
 
-def _travel(stroke_mm, delay, ramp, accel, t, commands, signs):
+def _ones_if_none(stretch, commands):
+    """Each movement's duration over ``ramp``: ``stretch``, or 1 for every command."""
+    return jnp.ones_like(commands) if stretch is None else stretch
+
+
+def _travel(stroke_mm, delay, ramp, accel, t, commands, signs, stretch):
     """Finger travel (mm) and velocity (mm/s): :meth:`MeasurementModel.finger` in physical
     values."""
     last = jnp.searchsorted(commands, t, side="right") - 1  # -1: before the first
     now = jnp.maximum(last, 0)
     sign = jnp.where(last >= 0, signs[now], 0.0)
     done = jnp.concatenate([jnp.zeros(1, dtype=signs.dtype), jnp.cumsum(signs)])[now]
-    pos, vel = trapezoid((t - commands[now] - delay) / ramp, accel)
-    return stroke_mm * (done + sign * pos), stroke_mm / ramp * sign * vel
+    duration = ramp * stretch[now]
+    pos, vel = trapezoid((t - commands[now] - delay) / duration, accel)
+    return stroke_mm * (done + sign * pos), stroke_mm / duration * sign * vel
 
 
 @lru_cache(maxsize=32)
-def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...]):
-    """``force(theta, t, commands, signs)`` (N): the contact law driven by the rig, ``theta``
-    the law's parameters then :data:`RIG` (physical).
+def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
+    """``force(theta, t, commands, signs, stretch)`` (N): the contact law driven by the rig,
+    ``theta`` the law's parameters then :data:`RIG` (physical).
 
     Its derivative is the Jacobian in the ``varied`` entries of ``theta`` times their
     tangent: a Jacobian of the whole model (``jacfwd``) then pushes only these parameters
     through the sequential contact simulation, not the sensor's and the drag's, which enter
     after it (~25 % fewer lanes in the scan), nor the held ones (a held rig halves the
-    simulation's Jacobian: the drive's tangent is its costliest). ``t``, ``commands`` and
-    ``signs`` are data: never differentiated.
+    simulation's Jacobian: the drive's tangent is its costliest). ``t``, ``commands``,
+    ``signs`` and ``stretch`` are data: never differentiated. ``varied=None``: the plain
+    simulation, differentiable in every input.
     """
     names = LAWS[law]
 
-    def force(theta, t, commands, signs):
-        x, _ = _travel(stroke_mm, *theta[len(names):], t, commands, signs)
+    def force(theta, t, commands, signs, stretch):
+        x, _ = _travel(stroke_mm, *theta[len(names):], t, commands, signs, stretch)
         dt = jnp.diff(t, prepend=2.0 * t[0] - t[1])
         return contact_force(x, dt, **dict(zip(names, theta[: len(names)], strict=True)))
 
+    if varied is None:
+        return force
+
     @jax.custom_jvp
-    def simulated(theta, t, commands, signs):
-        return force(theta, t, commands, signs)
+    def simulated(theta, t, commands, signs, stretch):
+        return force(theta, t, commands, signs, stretch)
 
     @simulated.defjvp
     def _(primals, tangents):
-        theta, t, commands, signs = primals
+        theta, t, commands, signs, stretch = primals
         idx = jnp.asarray(varied, dtype=int)
-        jac, value = jax.jacfwd(lambda th: (force(theta.at[idx].set(th), t, commands, signs),) * 2,
-                                has_aux=True)(theta[idx])
+        jac, value = jax.jacfwd(
+            lambda th: (force(theta.at[idx].set(th), t, commands, signs, stretch),) * 2,
+            has_aux=True)(theta[idx])
         return value, jac @ tangents[0][idx]
 
     return simulated

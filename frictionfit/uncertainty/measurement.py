@@ -236,7 +236,8 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     free_l = list(free)
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
     if method != "laplace":  # the density is needed
-        sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0])) for i in rows]
+        sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0]),
+                       stretch=np.asarray(fit.drive_input[i][2])) for i in rows]
         data = tuple(jnp.asarray(a) for a in stack_items(sub, u_hat))
         s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
     if method == "auto":
