@@ -182,8 +182,10 @@ display(Image(filename=FIGURES / "corner.png"))
 # This paper contact is stiff: it loads within a few milliseconds, during the motor's
 # acceleration, where `k` trades off with the acceleration share (fitted 0.33 against the
 # simulated rig's ~0.07, correlation 0.70 with `k`), and here the fit lands 3 standard
-# errors from the true `k` without a flag. The acceleration belongs to the rig, shared by
-# every recording of a day, and a softer recording of the same day would pin it; the softer
-# materials of the library come out within a few per cent
+# errors from the true `k` without a flag. Holding the rig at the day's values (the four
+# sample recordings with `rig="session"`: duration and acceleration share right within a
+# few per cent) does not cure it, it gives `k` 26 +/- 0.6 N/mm: for a contact this stiff
+# the fitted `k` is not the simulator's, whatever the rig. The softer materials of the
+# library come out within a few per cent
 # (notebook 02). The per-motion posterior (last section) shows the same ridge as a wide,
 # skewed `k` distribution that emcee does not finish exploring in 2000 steps.
