@@ -238,18 +238,18 @@ top.round(3)
 # fitted contact law alone (`fitted`: stiffness, static friction level, held force,
 # stick-slip intensity, relaxation and drag of the two rubbing channels, each recording
 # fitted whole, and each lateral channel's share of the fitted force and its stick-slip)
-# scores 0.64 (folds 0.67 / 0.61) and all physical features together 0.61 (0.56 / 0.67),
+# scores 0.75 (folds 0.72 / 0.78) and all physical features together 0.63 (0.58 / 0.67),
 # ahead of the measured contact quantities (`physical`, 0.57), handcrafted (0.35), FFT
 # bins (0.31) and raw signals (0.24). Every physical set gets the layer count right
 # (1.00), and most errors fall inside the designed look-alike pairs (curtain-rose vs
-# curtain-white, paper-2 vs banknote-2 and pe-bag-2). With all physical features the SVM
-# leans on the measured peak times, onset rates, relaxation curve and slip ripple; no
-# fitted quantity is among its ten most relied on. On the lab stand-in, whose physics is
-# not the model's, the fitted parameters alone score about as the measured quantities do
-# (0.945 against 0.940 leave-one-session-out on three days) and together they score best
-# (0.969); `physical` stays the default because it needs no fit. With one training day the LDA projection stepped aside (too few rows); on the lab stand-in,
-# with two or three training days, it is what lifts physical features above the
-# hand-crafted baseline.
+# curtain-white, paper-2 vs banknote-2). With all physical features the SVM leans most on
+# the measured relaxation curve, then on the fitted held force, the onset rate and the
+# slip ripple. On the lab stand-in, whose physics is not the model's, the fitted
+# parameters alone score about as the measured quantities do (0.945 against 0.940
+# leave-one-session-out on three days) and together they score best (0.969); `physical`
+# stays the default because it needs no fit. With one training day the LDA projection
+# stepped aside (too few rows); on the lab stand-in, with two or three training days, it
+# is what lifts physical features above the hand-crafted baseline.
 #
 # The class probabilities are only as good as what they are calibrated on: with one
 # training day of three recordings per class, the calibration folds are tiny and the
@@ -259,11 +259,10 @@ top.round(3)
 # the probability instead of hiding in a confident label.
 #
 # The fit's own posterior reaches the call too. The least certain fit of session 2
-# (saran-wrap-1, stderrs about 0.4 of the spread between training recordings, against
-# 0.18 for the median recording) shows why: its stiffness is not identified (stderr
-# larger than the value), its fast relaxation branch is not distinguishable from none
-# and its second branch sits at its bound. Its fitted features do not point to its
-# class: from point values the top classes are banknote-1 and pe-bag-2 (0.134 each);
-# drawn from that posterior the probabilities shift (banknote-1 0.161, pe-bag-2 0.149)
-# but stay low, and the true class is not among the six most probable. A doubtful fit
-# gives a low top probability, which `--abstain` turns into no call.
+# (pe-bag-1, stderrs about 0.5 of the spread between training recordings, against 0.15
+# for the median recording) shows why: its stiffness and the motor's acceleration share
+# are not identified (stderr larger than the value) and its second relaxation branch sits
+# at its bound. From point values its fitted features point to banknote-1 (0.21), the
+# true class second (0.14); drawn from that posterior the probabilities shift and the true
+# class comes first (pe-bag-1 0.19, saran-wrap-1 0.15, banknote-1 0.08), still with a low
+# top probability, which `--abstain` turns into no call.
