@@ -420,29 +420,33 @@ def _timing_normal_fn(model: MeasurementModel):
 
 def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """One item's command times and duration factors (module notes): the onset shift in
-    :data:`SHIFTS_S` that fits each fine window best at ``u``, then :data:`TIMING_STEPS`
+    """One item's command times and duration factors: the onset shift in :data:`SHIFTS_S`
+    that fits each fine window best at ``u``, then up to :data:`TIMING_STEPS`
     Levenberg-Marquardt steps in every movement's onset and log duration together; both
     relative to their median over the fitted movements (``delay`` and ``ramp`` keep the
     typical movement)."""
-    cost = np.asarray(_window_costs_fn(model)(jnp.asarray(u), d.y, d.weight, d.t, d.commands,
-                                              d.signs, d.direction))
+    u = jnp.asarray(u)
+    cost = np.asarray(_window_costs_fn(model)(u, d.y, d.weight, d.t, d.commands, d.signs,
+                                              d.direction))
     seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
     commands = d.commands + np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
     stretch = np.ones_like(commands)
     normal = _timing_normal_fn(model)
+
+    def at(commands, stretch):  # (cost, J^T J, J^T r) at this timing
+        return [np.asarray(v) for v in normal(u, d.y, d.weight, d.t, commands, d.signs,
+                                              stretch, d.direction)]
+
     m, lam = commands.size, 1e-3
     limit = np.repeat(TIMING_STEP_MAX, m)
-    here = [np.asarray(a) for a in normal(jnp.asarray(u), d.y, d.weight, d.t, commands,
-                                          d.signs, stretch, d.direction)]
+    here = at(commands, stretch)
     for _ in range(TIMING_STEPS):
         c, jtj, g = here
         diag = np.diagonal(jtj)
-        a = jtj + np.diag(lam * diag + 1e-12 * max(diag.max(), 1e-300))
-        z = np.clip(-np.linalg.solve(a, g), -limit, limit)
+        damped = jtj + np.diag(lam * diag + 1e-12 * max(diag.max(), 1e-300))
+        z = np.clip(-np.linalg.solve(damped, g), -limit, limit)
         cand = (commands + z[:m], stretch * np.exp(z[m:]))
-        there = [np.asarray(a) for a in normal(jnp.asarray(u), d.y, d.weight, d.t, cand[0],
-                                               d.signs, cand[1], d.direction)]
+        there = at(*cand)
         if there[0] <= c:
             (commands, stretch), here, lam = cand, there, lam / 3.0
             if c - there[0] <= TIMING_FTOL * c:

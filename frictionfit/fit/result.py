@@ -43,8 +43,8 @@ class FitResult:
     direction, drive_input, drive, stroke_mm, priors
         What :meth:`predict` needs to recompute a trial's fitted curve (``drive="measurement"``:
         ``drive_input[i]`` holds the move commands, s, their signs and each movement's
-        duration over ``ramp``), and the
-        ``priors=`` the fit was given (``None``: the parameters' defaults).
+        duration over ``ramp``), and the ``priors=`` the fit was given (``None``: the
+        parameters' defaults).
     init : list of dict, optional
         Per trial, the starting point in physical units (the data-driven guess).
     correl : list of dict, optional
