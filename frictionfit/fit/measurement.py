@@ -87,6 +87,12 @@ class MeasurementData:
         stretch = np.ones_like(self.commands) if self.stretch is None else self.stretch
         return self.commands, self.signs, stretch
 
+    def driven_by(self, drive: tuple) -> MeasurementData:
+        """This item with a fit's drive (``FitResult.drive_input[i]``: each movement's timing
+        as the fit found it)."""
+        commands, _, stretch = (np.asarray(a) for a in drive)
+        return replace(self, commands=commands, stretch=stretch)
+
 
 def _move_signs(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     """Times (s) of the ``move`` events and their signs: the first target is out (+1)."""
@@ -314,13 +320,13 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
         for i, d in enumerate(items):
             if result.model[i] != name:
                 continue
-            commands, signs, stretch = (np.asarray(a) for a in result.drive_input[i])
-            outs = commands[signs > 0]
+            driven = d.driven_by(result.drive_input[i])
+            outs = driven.commands[driven.signs > 0]
             for m, (a, b) in enumerate(zip(outs, [*outs[1:], np.inf], strict=True)):
                 weight = np.where((d.t >= a) & (d.t < b), d.weight, 0.0)
                 if np.count_nonzero(weight) < MIN_MOTION_BLOCKS:
                     continue  # the preparatory motion, or one with too few usable blocks
-                sub.append(replace(d, commands=commands, stretch=stretch, weight=weight))
+                sub.append(replace(driven, weight=weight))
                 starts.append(result.u[i])
                 for n in SETUP:
                     fixed[n].append(result.values[i][n])

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import replace
 from functools import lru_cache
 
 import jax
@@ -236,8 +235,7 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     free_l = list(free)
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
     if method != "laplace":  # the density is needed
-        sub = [replace(items[i], commands=np.asarray(fit.drive_input[i][0]),
-                       stretch=np.asarray(fit.drive_input[i][2])) for i in rows]
+        sub = [items[i].driven_by(fit.drive_input[i]) for i in rows]
         data = tuple(jnp.asarray(a) for a in stack_items(sub, u_hat))
         s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
     if method == "auto":
