@@ -79,6 +79,28 @@ def test_features_table_has_recording_label_groups_then_features(folders, tmp_pa
     assert table.shape == (3, 3 + 3 + 80)  # + layers, material, problems; 80 FFT bins
 
 
+def test_default_features_follow_the_dataset_kind(folders, tmp_path):
+    """Rubbing recordings without --features: the measured quantities and the fitted law."""
+    out = tmp_path / "f.csv"
+    result = runner.invoke(app, ["features", "--dataset", f"recordings:{folders[1]}",
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    columns = list(pd.read_csv(out).columns)
+    assert "physical__index_x:out_static [N]" in columns
+    assert "fitted__index_x:fit_k [log10 N/mm]" in columns
+
+
+def test_gestures_default_to_their_wavelet_features(tmp_path):
+    from frictionfit.simulation.gestures import simulate_gestures
+
+    simulate_gestures(tmp_path / "g", people=1, repetitions=1, progress=False)
+    out = tmp_path / "f.csv"
+    result = runner.invoke(app, ["features", "--dataset", f"gesture:{tmp_path / 'g'}",
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "7 recordings x 270 features" in result.output
+
+
 def test_evaluate_prints_accuracy_last_and_saves(folders, tmp_path):
     out, png, rel, pred = (tmp_path / n for n in ("r.csv", "c.png", "rel.png", "p.csv"))
     # one training session of 12 recordings per fold: too few to hold 10 neighbours out

@@ -11,16 +11,23 @@ from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
                  "law fitted to each recording), handcrafted, fftbins, spectral, raw, gesture, "
-                 "touch, shortcut; a comma list concatenates them (physical,fitted: the most "
-                 "accurate on rubbing recordings, with a fit per recording).")
+                 "touch, shortcut; a comma list concatenates them. Default by dataset kind: "
+                 "recordings physical,fitted (the most accurate and best calibrated; a fit "
+                 "per recording, about 1 s each on 2 cores), fabricslide physical, gesture "
+                 "gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
                 "within-class scatter), none, or auto: lda when the data span several sessions.")
 #: Metadata columns written beside the features / predictions when present.
 GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
+#: The feature set of each dataset kind when ``--features`` is not given. Rubbing
+#: recordings: the measured quantities with the fitted law, the most accurate and best
+#: calibrated set (lab stand-in, leave-one-session-out: docs/results.md).
+DEFAULT_FEATURES = {"recordings": "physical,fitted", "fabricslide": "physical",
+                    "gesture": "gesture"}
 #: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
 ALL_DEFAULTS = {
-    "recordings": (["physical", "handcrafted", "fftbins", "spectral", "raw"],
+    "recordings": (["physical,fitted", "physical", "handcrafted", "fftbins", "spectral", "raw"],
                    ["kfold", "leave-one-session-out"]),
     "fabricslide": (["physical", "spectral", "physical,spectral", "shortcut"],
                     ["leave-one-repetition-out", "leave-one-pressure-out"]),
@@ -41,13 +48,18 @@ def _fail(message: str, code: int = 1):
     fail(message, code)
 
 
+def _features_for(dataset: str, features: str | None) -> str:
+    """``--features`` as given, or the dataset kind's :data:`DEFAULT_FEATURES`."""
+    return features or DEFAULT_FEATURES.get(dataset.partition(":")[0], "physical")
+
+
 def _groups(rec) -> dict:
     return {k: rec.metadata[k] for k in GROUP_COLUMNS if k in rec.metadata}
 
 
 def features(
     dataset: str = typer.Option(..., help=DATASET_HELP),
-    features: str = typer.Option("physical", help=FEATURES_HELP),
+    features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     out: Path = typer.Option(Path("features.csv"), help="Output table (.csv)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
@@ -57,6 +69,7 @@ def features(
     from frictionfit.features import make_features
 
     check_writable(out, "--out", (".csv",))
+    features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
         transformer = make_features(features)
@@ -73,7 +86,7 @@ def features(
 
 def train(
     dataset: str = typer.Option(..., help=DATASET_HELP),
-    features: str = typer.Option("physical", help=FEATURES_HELP),
+    features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     project: str = typer.Option("auto", help=PROJECT_HELP),
     out: Path = typer.Option(Path("model.skops"), help="Where to save the model (skops)."),
@@ -94,6 +107,7 @@ def train(
     from frictionfit.model_file import save_model
 
     check_writable(out, "--out")
+    features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
         y = labels_of(recordings)
@@ -222,7 +236,7 @@ def _check_channels(saved: dict, model: Path, recordings: list) -> None:
 
 def evaluate(
     dataset: str = typer.Option(..., help=DATASET_HELP),
-    features: str = typer.Option("physical", help=FEATURES_HELP),
+    features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     protocol: str = typer.Option("kfold", help="kfold, mixed-5fold, person-dependent, holdout, "
                                  "leave-one-{session,person,repetition,pressure}-out."),
@@ -257,6 +271,7 @@ def evaluate(
     for path, option in ((out, "--out"), (confusion, "--confusion"),
                          (reliability, "--reliability"), (predictions, "--predictions")):
         check_writable(path, option)
+    features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
         projection = projection_for(recordings, _projection(project))

@@ -58,8 +58,10 @@ def demo(
                               "relaxation2 or rich."),
     classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
                                   "and classify the sample data."),
-    fitted_features: bool = typer.Option(False, help="Classify with fitted model parameters "
-                                         "too (about 30 s more), not only measured quantities."),
+    fitted_features: bool = typer.Option(True, help="Classify with the fitted law's "
+                                         "parameters and the measured quantities (the default "
+                                         "features of rubbing recordings); --no-fitted-features:"
+                                         " the measured quantities alone (about 30 s faster)."),
 ) -> None:
     """Segment the sample measurements, fit each one whole, compare with the simulator's truth,
     and classify them."""
