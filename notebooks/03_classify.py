@@ -246,8 +246,9 @@ top.round(3)
 # the measured relaxation curve, then on the fitted held force, the onset rate and the
 # slip ripple. On the lab stand-in, whose physics is not the model's, the fitted
 # parameters alone score about as the measured quantities do (0.945 against 0.940
-# leave-one-session-out on three days) and together they score best (0.969); `physical`
-# stays the default because it needs no fit. With one training day the LDA projection
+# leave-one-session-out on three days) and together they score best (0.969), which is
+# why the command line classifies rubbing recordings with both (`physical,fitted`) unless
+# told otherwise. With one training day the LDA projection
 # stepped aside (too few rows); on the lab stand-in, with two or three training days, it
 # is what lifts physical features above the hand-crafted baseline.
 #
