@@ -132,7 +132,6 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
     from frictionfit.fit.measurement import stack_items
     from frictionfit.uncertainty.measurement import (
         _U_START,
-        _block_variance,
         _proposal_start,
         _unconstrained_density_fn,
     )
@@ -147,7 +146,7 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
     sub = [dataclasses.replace(d, commands=np.asarray(res.drive_input[i][0]))
            for i, d in enumerate(items)]
     data = tuple(jnp.asarray(a) for a in stack_items(sub, u))
-    s2 = _block_variance(model, free, u[:, list(free)], data, res.redchi)
+    s2 = res.block_var
     mode, covs = _proposal_start(model, free, u_free, data, s2)
     density = _unconstrained_density_fn(model, free)
     start = np.clip(u_free, -_U_START, _U_START)
@@ -162,3 +161,32 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
         points[3] = start[k]
         lp = np.asarray(density(jnp.asarray(points), jnp.full(4, k), data, jnp.asarray(s2)))
         assert np.all(lp[0] >= lp[1:])
+
+
+def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
+    """emcee's density is the fit's own: at the fit's optimum its Gauss-Newton curvature
+    (the data's and the priors' rows over the fit's block variance) is the inverse of the
+    fit's covariance, so Laplace and emcee describe one posterior."""
+    import jax.numpy as jnp
+
+    from frictionfit.fit.measurement import stack_items
+    from frictionfit.uncertainty.measurement import _gauss_newton_fn
+
+    items, res = fitted
+    model = res.member(0)
+    free = tuple(model.param_names.index(p) for p in res.free_names(0))
+    u = np.stack(res.u)
+    data = tuple(jnp.asarray(a) for a in stack_items(
+        [d.driven_by(res.drive_input[i]) for i, d in enumerate(items)], u))
+    curvature = _gauss_newton_fn(model, free)
+    for i in range(2):
+        row = tuple(a[i] for a in data)
+        _, _, hess = curvature(jnp.asarray(u[i, list(free)]), row, res.block_var[i],
+                               jnp.zeros(len(free), bool))
+        # a parameter on its bound has a vanishing column: compare the others
+        inside = [j for j, n in enumerate(res.free_names(i))
+                  if res.flags[i].get(n) not in ("at bound", "singular")]
+        cov = np.linalg.inv(np.asarray(hess)[np.ix_(inside, inside)])
+        sd = np.sqrt(np.diag(res.cov[i]))[inside]
+        # the solver's J^T J (in the vmapped pool) against one outside it: ~1e-3
+        np.testing.assert_allclose(np.sqrt(np.diag(cov)), sd, rtol=5e-3)

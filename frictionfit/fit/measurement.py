@@ -545,8 +545,9 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     rho = np.clip(lag1_rho(resid, mask), *RHO_POSTERIOR)
     stats = statistics(model, u, resid, jtj * ((1 - rho) / (1 + rho))[:, None, None], mask,
                        free, tuple(fix))
+    block_var = stats["redchi"] * (1 + rho) / (1 - rho)
     if final:
-        _ridges_checked(model, free, u, stats, data, stats["redchi"] * (1 + rho) / (1 - rho))
+        _ridges_checked(model, free, u, stats, data, block_var)
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
@@ -562,7 +563,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
         n_steps=steps, u=list(u), direction=data[6], drive="measurement",
         drive_input=[d.drive for d in items],
         init=[_physical_init(model, d.guess) for d in items],
-        correl=stats["correl"], cov=list(stats["cov"]), stroke_mm=model.stroke_mm,
+        correl=stats["correl"], cov=list(stats["cov"]), block_var=block_var,
+        stroke_mm=model.stroke_mm,
         priors=_prior_dict(model),
         derived=(derived_quantities(model, free, u, stats["cov"], resid, items, data[6])
                  if final else None))

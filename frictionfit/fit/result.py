@@ -56,6 +56,10 @@ class FitResult:
         Per trial, the covariance of the free parameters' estimates in the fit's
         unconstrained coordinates (rows in the order of :meth:`free_names`; scaled by the
         reduced chi-square as lmfit's ``covar``; NaN where it could not be computed).
+    block_var : ndarray, optional
+        Whole-measurement fits: per trial, the variance (N^2) of one weighted block
+        residual that ``cov`` implies (the reduced chi-square times the AR(1) inflation
+        ``(1 + rho) / (1 - rho)``); the posteriors' likelihood scale.
     """
 
     model: list[str]
@@ -84,6 +88,7 @@ class FitResult:
     correl: list[dict] | None = field(default=None, repr=False)
     derived: list[dict] | None = field(default=None, repr=False)
     cov: list[np.ndarray] | None = field(default=None, repr=False)
+    block_var: np.ndarray | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         from collections import Counter

@@ -6,8 +6,8 @@ returns a :class:`~frictionfit.uncertainty.Posterior`, one row per recording x c
 
 The density is the fit's own: its residual (weighted block residuals, then the model's
 prior rows scaled by the recording's noise sd) over the variance per block that the fit's
-covariance implies, ``s2 = redchi (1 + rho) / (1 - rho)`` (``rho``: lag-1 coefficient of the
-block residuals, as in the fit). Its mode is the fit's optimum and its Gauss-Newton
+covariance implies, ``FitResult.block_var`` (``redchi (1 + rho) / (1 - rho)``, ``rho`` the
+lag-1 coefficient of the block residuals). Its mode is the fit's optimum and its Gauss-Newton
 covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximation.
 
 - ``"laplace"``: draws from ``N(u_hat, cov)`` over the free parameters in the fit's
@@ -41,7 +41,6 @@ import numpy as np
 
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
-from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit.measurement import (
     MeasurementData,
@@ -91,17 +90,6 @@ def _unconstrained_density_fn(model: MeasurementModel, free: tuple[int, ...]):
         return density(u, i, data, s2) + jnp.sum(jnp.where(bounded, log_logistic(u), 0.0))
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
-
-
-def _block_variance(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
-                    data: tuple, redchi: np.ndarray) -> np.ndarray:
-    """Per item, the variance of a weighted block residual the fit's covariance implies
-    (N^2): ``redchi (1 + rho) / (1 - rho)``, ``rho`` the residuals' lag-1 coefficient."""
-    residual = jax.jit(jax.vmap(residual_fn(model, free)))
-    n = data[0].shape[1]
-    resid = np.asarray(residual(jnp.asarray(u_free), data))[:, :n]
-    rho = np.clip(lag1_rho(resid, data[1] > 0), *RHO_POSTERIOR)
-    return redchi * (1 + rho) / (1 - rho)
 
 
 def _profile_disagreement(model, free, data, s2, mode: np.ndarray, cov: np.ndarray
@@ -237,7 +225,7 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     if method != "laplace":  # the density is needed
         sub = [items[i].driven_by(fit.drive_input[i]) for i in rows]
         data = tuple(jnp.asarray(a) for a in stack_items(sub, u_hat))
-        s2 = jnp.asarray(_block_variance(model, free, mode, data, fit.redchi[rows]))
+        s2 = jnp.asarray(fit.block_var[rows])
     if method == "auto":
         dev = _profile_disagreement(model, free, data, s2, mode, cov)
         reasons = [auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
