@@ -233,7 +233,7 @@ def fit_measurements(
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
-    max_steps: int = 200,
+    max_steps: int = 400,
     pool_size: int = 16,
     threads: int | None = None,
     progress: bool | None = None,
@@ -249,6 +249,8 @@ def fit_measurements(
     first optimum) and fit again; ``"rig"``: one latency and duration for all. ``fix``:
     name -> physical value (one, or one per item) held fixed.
     ``u0``: unconstrained starting points (of the first law; default: the data's guess).
+    ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
+    steps before they converge).
     With a second fit, every law is fitted again on the full grid (the first grid's merged
     blocks blur a static peak into a fast relaxation) and the law chosen there.
     Returns a :class:`FitResult` with one row per item (values in physical units,
