@@ -554,7 +554,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
     names = [model.param_names[j] for j in free]
-    cond = np.array([_cond_inside(jtj[i], [stats["flags"][i].get(n) != "at bound" for n in names])
+    cond = np.array([_cond_inside(jtj[i], [stats["flags"][i].get(n) not in VANISHING
+                                           for n in names])
                      for i in range(len(items))])
     status = np.array([status_of(len(free), code[i] == Status.CONVERGED, u[i], stats["chi2"][i],
                                  cond[i], mask[i]) for i in range(len(items))])
@@ -628,12 +629,18 @@ def _ridges_checked(model: MeasurementModel, free: tuple[int, ...], u: np.ndarra
         flag_gated(flags, stats["values"][i], stats["stderr"][i])
 
 
-def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
-    """Condition number of the column-scaled ``J^T J`` over the parameters not at a bound.
+#: Flags of a parameter whose column of the Jacobian vanishes: one pinned at a bound (a
+#: static peak the data do not show, a branch that relaxes as far as allowed) and one
+#: that no longer acts ("singular": a branch's time when its fraction sits at 0).
+VANISHING = ("at bound", "singular")
 
-    A parameter pinned at a bound (flagged "at bound": a static peak the data do not show, a
-    branch that relaxes as far as allowed) has a vanishing column in the fit's coordinates;
-    it is reported at the bound, and the conditioning that matters is the others'.
+
+def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:
+    """Condition number of the column-scaled ``J^T J`` over the parameters ``inside``.
+
+    A parameter whose column vanishes (:data:`VANISHING`) makes ``J^T J`` singular however
+    well the others are determined; it is reported with its flag, and the conditioning that
+    matters is the others'.
     """
     a = jtj[np.ix_(np.flatnonzero(inside), np.flatnonzero(inside))]
     return float(scaled_condition(a)) if np.all(np.isfinite(a)) else np.inf
