@@ -1,5 +1,5 @@
-"""Small numerics shared by the fit and the posterior: the delta method, scaled
-inverses and condition numbers of normal matrices, and evaluation in padded chunks."""
+"""Small numerics shared by the fit and the posterior: the delta method, normal equations,
+scaled inverses and condition numbers of normal matrices, and evaluation in padded chunks."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-__all__ = ["DELTA_STEP", "fd_slope", "map_chunks", "pad_rows", "scaled_condition",
-           "scaled_pinv"]
+__all__ = ["DELTA_STEP", "fd_slope", "map_chunks", "normal_equations", "pad_rows",
+           "scaled_condition", "scaled_pinv"]
 
 #: Step of the central differences of the delta method (unconstrained units).
 DELTA_STEP = 1e-6
@@ -18,6 +18,13 @@ DELTA_STEP = 1e-6
 def fd_slope(f: Callable, u, h: float = DELTA_STEP):
     """``df/du`` at ``u`` by a central difference, elementwise (the delta method's slope)."""
     return (f(u + h) - f(u - h)) / (2 * h)
+
+
+def normal_equations(residual: Callable, x):
+    """``(|r|^2 / 2, J^T J, J^T r)`` of ``residual`` at ``x`` (traced; a forward-mode
+    Jacobian: few parameters, many residuals)."""
+    jac, r = jax.jacfwd(lambda z: (residual(z),) * 2, has_aux=True)(x)
+    return 0.5 * r @ r, jac.T @ jac, jac.T @ r
 
 
 def _unit_diagonal(a: np.ndarray):

@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import map_chunks, scaled_condition
+from frictionfit.fit._numerics import map_chunks, normal_equations, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import choose, flag_gated, statistics, status_of
@@ -420,8 +420,7 @@ def _timing_normal_fn(model: MeasurementModel):
                                  stretch=stretch * jnp.exp(z[m:]), timing_derivatives=True)
             return weight * (pred - y)
 
-        jac, r = jax.jacfwd(lambda z: (resid(z),) * 2, has_aux=True)(jnp.zeros(2 * m))
-        return 0.5 * r @ r, jac.T @ jac, jac.T @ r
+        return normal_equations(resid, jnp.zeros(2 * m))
 
     return jax.jit(normal)
 
@@ -681,8 +680,7 @@ def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
     residual = residual_fn(model, free)
 
     def one(u_free, data):
-        jac = jax.jacfwd(residual)(u_free, data)
-        return jac.T @ jac
+        return normal_equations(lambda w: residual(w, data), u_free)[1]
 
     return jax.jit(one)
 

@@ -412,8 +412,9 @@ def store_chain(model, i: int, chain, out: dict) -> None:
     out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = emcee_summary(
         model, chain)
     if not chain.converged:
+        tau = np.asarray(chain.tau)[np.isfinite(chain.tau)]
+        longest = f"{tau.max():.1f}" if tau.size else "not estimated"
         out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps "
-                             f"(max tau {np.nanmax(chain.tau):.1f}, acceptance "
-                             f"{chain.acceptance:.2f})")
+                             f"(max tau {longest}, acceptance {chain.acceptance:.2f})")
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from frictionfit.fit import Trials
 from frictionfit.fit._noise import ar1_innovations
-from frictionfit.fit._numerics import scaled_condition, scaled_pinv
+from frictionfit.fit._numerics import normal_equations, scaled_condition, scaled_pinv
 from frictionfit.models import ContactModel
 from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, ROW_AXES, logp_rows
 
@@ -58,10 +58,9 @@ def _curvature(model: ContactModel):
                                 model.prior_residuals(u)])
 
     def one(u, trial: Trials, sigma, rho):
-        w = whitened(u, trial, sigma, rho)
-        jac = jax.jacfwd(whitened)(u, trial, sigma, rho)
+        _, jtj, jtw = normal_equations(lambda v: whitened(v, trial, sigma, rho), u)
         g_prior, h_prior = _prior_terms(model, u)
-        return jac.T @ jac + jnp.diag(h_prior), jac.T @ w + g_prior
+        return jtj + jnp.diag(h_prior), jtw + g_prior
 
     return jax.jit(jax.vmap(one, in_axes=(0, ROW_AXES, 0, 0)))
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
-from frictionfit.fit._numerics import map_chunks
+from frictionfit.fit._numerics import map_chunks, normal_equations
 from frictionfit.fit.measurement import (
     MeasurementData,
     profile_drops,
@@ -270,12 +270,11 @@ def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
     residual = residual_fn(model, free)
 
     def one(u, data, s2, bounded):
-        jac, r = jax.jacfwd(lambda w: (residual(w, data),) * 2, has_aux=True)(u)
+        cost, jtj, jtr = normal_equations(lambda w: residual(w, data), u)
         sig = jax.nn.sigmoid(u)
-        lp = -0.5 * jnp.sum(r**2) / s2 + jnp.sum(
-            jnp.where(bounded, log_logistic(u), 0.0))
-        grad = -jac.T @ r / s2 + jnp.where(bounded, 1.0 - 2.0 * sig, 0.0)
-        hess = jac.T @ jac / s2 + jnp.diag(jnp.where(bounded, 2.0 * sig * (1.0 - sig), 0.0))
+        lp = -cost / s2 + jnp.sum(jnp.where(bounded, log_logistic(u), 0.0))
+        grad = -jtr / s2 + jnp.where(bounded, 1.0 - 2.0 * sig, 0.0)
+        hess = jtj / s2 + jnp.diag(jnp.where(bounded, 2.0 * sig * (1.0 - sig), 0.0))
         return lp, grad, hess
 
     return jax.jit(one)
