@@ -5,9 +5,12 @@ at 0.05 + 2k s, ``move p1`` at 1.05 + 2k s), 10.05 s at 1 kHz, channels ``thumb_
 ``thumb_y``, ``index_x``, ``index_y`` in N, written as ``s{session}_{label}_{trial:02d}``.
 
 The tangential force is the contact law of :mod:`frictionfit.models` (``rich``: static
-peak, slip weakening, two Maxwell branches, damping) driven continuously through the
-whole measurement, so each motion starts from the state the previous one left
-(the fitter assumes a start at rest). Effects the fitted family does not model:
+peak, slip weakening, two Maxwell branches, damping), each motion with its own material
+parameters. A motion is simulated from rest one second before its out command, with the
+previous back stroke (or the fingers closing) as its history, and the motions are joined
+in the holds at t = 2, 4, 6, 8 s: the state a motion starts from carries the previous back
+stroke but not the strokes before it, and the force steps at the joins (by 5-70 mN on the
+measured classes; docs/decisions.md). Effects the fitted family does not model:
 
 - motor: trapezoid velocity profile (acceleration phases of 8-15 ms) with a latency,
   stroke and duration that drift per session and jitter per movement;
