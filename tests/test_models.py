@@ -87,9 +87,23 @@ def test_unknown_model_and_drive_are_named():
 def test_absent_effect_equals_switched_off_effect():
     # None leaves an effect out of the recurrence; it must equal the effect at zero.
     x = 1.0 * (0.5 - 0.5 * jnp.cos(jnp.pi * jnp.clip(T / 0.12, 0, 1)))
-    full = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15, 0.0, 1.0, 0.0)
+    full = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15, 0.0, 1.0, 0.0, 0.0)
     lean = contact_force(x, 1e-3, 8.0, 0.6, 0.4, 0.05, 0.3, 0.15)
     np.testing.assert_allclose(lean, full, rtol=0, atol=1e-14)
+
+
+def test_worn_kinetic_level_is_f_kin_halfway_through_the_travel():
+    # Four 1-mm strokes out and back: the plateau of each stroke falls by exp(-wear) per mm
+    # travelled, and equals f_kin at half the total travel (2 mm).
+    one = jnp.linspace(0.0, 1.0, 500)
+    x = jnp.concatenate([one, one[::-1], one, one[::-1]])
+    wear = 0.05
+    f = np.asarray(contact_force(x, 1e-3, 50.0, 0.6, wear=wear))
+    travel = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(x)))])
+    sliding = np.arange(x.size) % 500 >= 50  # each stroke after its loading
+    level = 0.6 * np.exp(wear * (2.0 - travel))
+    np.testing.assert_allclose(np.abs(f[sliding]), level[sliding], rtol=1e-12)
+    assert np.abs(f[sliding]).max() > 0.6 * np.exp(0.09)  # a fresh textile grips more
 
 
 def test_ramp_shape_is_the_raised_cosine_to_rounding_with_its_derivative():

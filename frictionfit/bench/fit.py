@@ -72,8 +72,9 @@ def numpy_contact_force(x: np.ndarray, dt, v: dict) -> np.ndarray:
         g = np.where(h < 1e-8, 1.0 - 0.5 * h, -np.expm1(-h) / np.maximum(h, 1e-300))
         coef.append((frac, np.exp(-h), g))
     k, f_kin, excess = v["k"], v["f_kin"], get("f_static_excess")
-    damping = get("damping")
-    z = s = 0.0
+    damping, wear = get("damping"), get("wear")
+    half_travel = 0.5 * np.sum(np.abs(np.diff(x)))
+    z = s = travel = 0.0
     ws = [0.0] * len(coef)
     x_old, direction_of_motion = x[0], 1.0
     force = np.empty_like(x)
@@ -81,10 +82,13 @@ def numpy_contact_force(x: np.ndarray, dt, v: dict) -> np.ndarray:
         dx = x_new - x_old
         new_dir = np.sign(dx) if dx != 0.0 else direction_of_motion
         limit = f_kin
+        if wear is not None:
+            travel += abs(dx)
+            limit = f_kin * np.exp(wear * (half_travel - travel))
         if excess is not None:
             if dx != 0.0 and new_dir != direction_of_motion:
                 s = 0.0
-            limit = f_kin + excess * np.exp(-s * (1.0 / v["slip_length"]))
+            limit = limit + excess * np.exp(-s * (1.0 / v["slip_length"]))
         z_max = limit * (1.0 / k)
         z_trial = z + dx
         z_new = min(max(z_trial, -z_max), z_max)

@@ -87,7 +87,7 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
             flags[par.name] = "at bound"
         elif not np.isfinite(se) or scale[jj] < 1e-12:
             flags[par.name] = "singular"
-        elif par.transform != "identity" and se > abs(v):
+        elif not par.signed and se > abs(v):
             flags[par.name] = "stderr > value"
         elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"

@@ -11,7 +11,10 @@ live at three levels, and this model gives each one value per measurement:
   mm of finger travel: normal force leaking into the channel as the finger moves);
 - **material**: one contact law (:func:`~frictionfit.models.stick_slip.contact_force`)
   driven through the whole measurement, so every stroke starts from the state the
-  previous one left, plus a sliding ``drag`` proportional to the finger's velocity.
+  previous one left, plus a sliding ``drag`` proportional to the finger's velocity; its
+  kinetic level changes with the finger's travel by a ``wear`` rate (a textile wearing or
+  running in over the strokes of one measurement, or the grip's normal force drifting;
+  ``f_kin`` is the level halfway through).
 
 Why not one fit per motion: there, the loading fixes only ``k / ramp**2`` (a ridge) and
 the start from rest puts the held force of the previous stroke into the offset. Here the
@@ -43,12 +46,13 @@ PRIORS = {"slip_length": (0.05, 1.5)}
 #: Contact laws of the measurement model (names of ``contact_force`` arguments): ``no_peak2``
 #: has no static peak (the slider slips at its kinetic level), two Maxwell branches.
 LAWS: dict[str, tuple[str, ...]] = {
-    "no_peak2": ("k", "f_kin", "relax_frac", "tau", "relax_frac2", "tau2"),
-    "relaxation": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau"),
+    "no_peak2": ("k", "f_kin", "relax_frac", "tau", "relax_frac2", "tau2", "wear"),
+    "relaxation": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
+                   "wear"),
     "relaxation2": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
-                    "relax_frac2", "tau2"),
+                    "relax_frac2", "tau2", "wear"),
     "rich": ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
-             "relax_frac2", "tau2", "damping"),
+             "relax_frac2", "tau2", "damping", "wear"),
 }
 
 

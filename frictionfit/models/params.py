@@ -43,6 +43,11 @@ class Param:
         if self.prior is not None:
             self.check_prior(self.prior)
 
+    @property
+    def signed(self) -> bool:
+        """Whether the parameter can take either sign (then its size is no test of it)."""
+        return self.lower < 0.0
+
     def check_prior(self, prior: tuple[float, float]) -> tuple[float, float]:
         """``prior`` as floats; ValueError for a centre outside the bounds or sd <= 0."""
         centre, sd = (float(v) for v in prior)

@@ -90,6 +90,7 @@ def contact_force(
     relax_frac2=None,
     tau2=1.0,
     damping=None,
+    wear=None,
     unroll: int = 2,
 ):
     """Tangential force (N) for a drive displacement ``x`` (mm) sampled every ``dt`` s.
@@ -100,14 +101,17 @@ def contact_force(
     Parameters (physical units): ``k`` N/mm, ``f_kin`` N, ``f_static_excess`` N
     (static minus kinetic level), ``slip_length`` mm, ``relax_frac`` and
     ``relax_frac2`` (fractions of the instantaneous force that relax; their sum is
-    kept below 1), ``tau``/``tau2`` s, ``damping`` N s/mm. An effect whose
-    parameter is ``None`` is left out of the recurrence (not computed at all);
-    ``0.0`` gives the same force. With the defaults the law is the plain
-    elastic-plastic slider. Starts at rest with ``z = 0``. Every update is an
-    exact per-sample recurrence, stable for any stiffness. ``unroll``: scan
+    kept below 1), ``tau``/``tau2`` s, ``damping`` N s/mm, ``wear`` 1/mm (the kinetic
+    level is ``f_kin exp(wear (L/2 - l))`` after a travel ``l`` of the drive, ``L`` its
+    whole travel: friction falling as a textile wears, rising where negative; ``f_kin``
+    is the level halfway through). An effect whose parameter is ``None`` is left out of
+    the recurrence (not computed at all); ``0.0`` gives the same force. With the defaults
+    the law is the plain elastic-plastic slider. Starts at rest with ``z = 0``. Every
+    update is an exact per-sample recurrence, stable for any stiffness. ``unroll``: scan
     unrolling (2 measured fastest on a 2-core CPU for batched Jacobians).
     """
     weakening = f_static_excess is not None
+    wearing = wear is not None
     fracs, taus = [], []
     if relax_frac is not None:
         fracs.append(relax_frac)
@@ -119,18 +123,25 @@ def contact_force(
     coefs = tuple(maxwell_coefficients(dt, tau_j) for tau_j in taus)
     inv_slip = 1.0 / slip_length
     inv_k = 1.0 / k
+    if wearing:  # the travel is taken as data, never differentiated: its derivative in the
+        # drive changes the level by wear * dx only, and it made the Jacobian 1.3x dearer
+        half_travel = 0.5 * jnp.sum(jnp.abs(jnp.diff(jax.lax.stop_gradient(x))))
 
     def step(carry, xs):
         x_new, inv_dt, step_coefs = xs if per_step else (xs, 1.0 / dt, coefs)
         branches = [(f, a, g) for f, (a, g) in zip(fracs, step_coefs, strict=True)]
-        z, s, ws, x_old, direction = carry
+        z, s, ws, x_old, direction, travel = carry
         dx = x_new - x_old
         moving = dx != 0.0
         new_dir = jnp.where(moving, jnp.sign(dx), direction)
-        limit = f_kin
+        if wearing:
+            travel = travel + jax.lax.stop_gradient(jnp.abs(dx))
+            limit = f_kin * jnp.exp(wear * (half_travel - travel))
+        else:
+            limit = f_kin
         if weakening:
             s = jnp.where(moving & (new_dir != direction), 0.0, s)  # reversal: stuck again
-            limit = f_kin + f_static_excess * jnp.exp(-s * inv_slip)
+            limit = limit + f_static_excess * jnp.exp(-s * inv_slip)
         z_max = limit * inv_k
         z_trial = z + dx
         z_new = jnp.clip(z_trial, -z_max, z_max)
@@ -142,10 +153,10 @@ def contact_force(
         force = k * elastic
         if damping is not None:
             force = force + damping * (z_new - z) * inv_dt
-        return (z_new, s, ws, x_new, new_dir), force
+        return (z_new, s, ws, x_new, new_dir, travel), force
 
     zero = jnp.zeros((), dtype=x.dtype)
-    init = (zero, zero, (zero,) * len(fracs), x[0], jnp.ones((), dtype=x.dtype))
+    init = (zero, zero, (zero,) * len(fracs), x[0], jnp.ones((), dtype=x.dtype), zero)
     xs = (x, 1.0 / dt, coefs) if per_step else x
     _, force = jax.lax.scan(step, init, xs, unroll=unroll)
     return force
