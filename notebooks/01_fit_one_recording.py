@@ -113,8 +113,9 @@ pd.DataFrame(rows).round(4)
 # motor (delay, movement duration, acceleration share of a trapezoid velocity profile,
 # and each movement's own latency and duration), one sensor (offset, drift, a leak with the
 # finger's travel) and one contact law (`relaxation2`: two Maxwell branches, plus a sliding
-# drag), the law's state carried from stroke to stroke. The first motion is simulated but
-# not fitted (it starts from the unknown state the closing of the fingers left).
+# drag and a `wear` of the kinetic level with the finger's travel), the law's state carried
+# from stroke to stroke. The first motion is simulated but not fitted (it starts from the
+# unknown state the closing of the fingers left).
 
 # %%
 from frictionfit.fit.measurement import fit_measurements, measurement_data
@@ -175,16 +176,18 @@ display(Image(filename=FIGURES / "corner.png"))
 # Fitted one motion at a time, the stiffness is not measured: the batch of motions ends on
 # the far end of the `k`-duration ridge (thousands of N/mm against a true ~38), flagged not
 # identifiable; only the kinetic friction and the motor delay are trustworthy there. Fitted
-# whole (`relaxation2`), the same recording gives `k` 144 +/- 33 N/mm (true 38), `f_kin`
-# 0.64 N (0.59), `f_static_excess` 0.22 N (0.28), `tau` 43 ms (50 ms) and `relax_frac`
-# 0.32 (0.14), at R^2 0.9994 over eight fitted strokes; the held force it derives,
-# 0.482 +/- 0.003 N, is determined far better than any of the parameters that make it up.
+# whole (`relaxation2`), the same recording gives `k` 142 +/- 32 N/mm (true 38), `f_kin`
+# 0.64 N (0.59), `f_static_excess` 0.23 N (0.28), `tau` 44 ms (50 ms) and `relax_frac`
+# 0.31 (0.14), at R^2 0.9994 over eight fitted strokes; the held force it derives,
+# 0.483 +/- 0.003 N, is determined far better than any of the parameters that make it up.
+# The kinetic level falls by `wear` 0.0048 +/- 0.0016 per mm of travel (the simulator
+# wears it by 1 % per motion, about 0.005 per mm).
 # This paper contact is stiff: it loads within a few milliseconds, during the motor's
-# acceleration, where `k` trades off with the acceleration share (fitted 0.33 against the
-# simulated rig's ~0.07, correlation 0.70 with `k`), and here the fit lands 3 standard
+# acceleration, where `k` trades off with the acceleration share (fitted 0.31 against the
+# simulated rig's ~0.07, correlation 0.74 with `k`), and here the fit lands 3 standard
 # errors from the true `k` without a flag. Holding the rig at the day's values (the four
 # sample recordings with `rig="session"`: duration and acceleration share right within a
-# few per cent) does not cure it, it gives `k` 26 +/- 0.6 N/mm: for a contact this stiff
+# few per cent) does not cure it, it gives `k` 24 +/- 0.5 N/mm: for a contact this stiff
 # the fitted `k` is not the simulator's, whatever the rig. The softer materials of the
 # library come out within a few per cent
 # (notebook 02). The per-motion posterior (last section) shows the same ridge as a wide,
