@@ -169,6 +169,7 @@ def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
     fit's covariance, so Laplace and emcee describe one posterior."""
     import jax.numpy as jnp
 
+    from frictionfit.fit._stats import VANISHING
     from frictionfit.fit.measurement import stack_items
     from frictionfit.uncertainty.measurement import _gauss_newton_fn
 
@@ -185,7 +186,7 @@ def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
                                jnp.zeros(len(free), bool))
         # a parameter on its bound has a vanishing column: compare the others
         inside = [j for j, n in enumerate(res.free_names(i))
-                  if res.flags[i].get(n) not in ("at bound", "singular")]
+                  if res.flags[i].get(n) not in VANISHING]
         cov = np.linalg.inv(np.asarray(hess)[np.ix_(inside, inside)])
         sd = np.sqrt(np.diag(res.cov[i]))[inside]
         # the solver's J^T J (in the vmapped pool) against one outside it: ~1e-3

@@ -38,8 +38,8 @@ from frictionfit.fit._numerics import fd_slope, scaled_condition
 from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
-           "MIN_LOADING_SAMPLES", "RHO_MAX", "ar1_deviance", "choose", "flag_fast_loading",
-           "flag_gated", "statistics", "status_of"]
+           "MIN_LOADING_SAMPLES", "RHO_MAX", "VANISHING", "ar1_deviance", "choose",
+           "flag_fast_loading", "flag_gated", "statistics", "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -52,6 +52,10 @@ CORRELATED = 0.99
 #: tau of a relaxation that is not seen, the slip length of an absent static peak.
 GATED = {"tau": "relax_frac", "tau2": "relax_frac2", "slip_length": "f_static_excess"}
 GATE_SDS = 2.0
+#: Flags of a parameter whose column of the Jacobian vanishes: one pinned at a bound (a
+#: static peak the data do not show, a branch that relaxes as far as allowed) and one
+#: that no longer acts ("singular": a branch's time when its fraction sits at 0).
+VANISHING = ("at bound", "singular")
 
 
 def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -33,7 +33,7 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import map_chunks, normal_equations, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import choose, flag_gated, statistics, status_of
+from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
@@ -544,9 +544,9 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     # AR(1) residuals carry fewer independent points than blocks: the covariance grows by
     # (1 + rho) / (1 - rho), the variance of a mean of correlated noise.
     rho = np.clip(lag1_rho(resid, mask), *RHO_POSTERIOR)
-    stats = statistics(model, u, resid, jtj * ((1 - rho) / (1 + rho))[:, None, None], mask,
-                       free, tuple(fix))
-    block_var = stats["redchi"] * (1 + rho) / (1 - rho)
+    inflation = (1 + rho) / (1 - rho)
+    stats = statistics(model, u, resid, jtj / inflation[:, None, None], mask, free, tuple(fix))
+    block_var = stats["redchi"] * inflation
     if final:
         _ridges_checked(model, free, u, stats, data, block_var)
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
@@ -626,12 +626,6 @@ def _ridges_checked(model: MeasurementModel, free: tuple[int, ...], u: np.ndarra
             if flags.get(name, "").startswith("trades off") and d >= PROFILE_MIN_DROP:
                 del flags[name]
         flag_gated(flags, stats["values"][i], stats["stderr"][i])
-
-
-#: Flags of a parameter whose column of the Jacobian vanishes: one pinned at a bound (a
-#: static peak the data do not show, a branch that relaxes as far as allowed) and one
-#: that no longer acts ("singular": a branch's time when its fraction sits at 0).
-VANISHING = ("at bound", "singular")
 
 
 def _cond_inside(jtj: np.ndarray, inside: list[bool]) -> float:

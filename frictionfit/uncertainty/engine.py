@@ -40,6 +40,7 @@ from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult, Trials
 from frictionfit.fit._noise import noise_estimate
 from frictionfit.fit._numerics import fd_slope, pad_rows
+from frictionfit.fit._stats import VANISHING
 from frictionfit.models import ContactModel, get_model
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import (
@@ -107,7 +108,7 @@ def auto_reason(fit: FitResult, i: int, cond: float, dev: float) -> str:
     """Why trial ``i`` needs emcee under the ``auto`` policy ("" when Laplace is fine)."""
     if fit.status[i] != Status.CONVERGED:
         return f"fit status {Status(int(fit.status[i])).name.lower()}"
-    bad = {k: v for k, v in fit.flags[i].items() if v in ("at bound", "singular")}
+    bad = {k: v for k, v in fit.flags[i].items() if v in VANISHING}
     if bad:
         return "flagged: " + ", ".join(f"{k} {v}" for k, v in bad.items())
     if not cond <= AUTO_MAX_COND:

@@ -42,6 +42,7 @@ import numpy as np
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
 from frictionfit.fit._numerics import map_chunks, normal_equations
+from frictionfit.fit._stats import VANISHING
 from frictionfit.fit.measurement import (
     MeasurementData,
     profile_drops,
@@ -248,7 +249,7 @@ def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) 
     out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _laplace_summary(
         model, draws)
     out["converged"][i] = int(fit.status[i]) == Status.CONVERGED
-    pinned = [n for n, f in fit.flags[i].items() if f in ("at bound", "singular")]
+    pinned = [n for n, f in fit.flags[i].items() if f in VANISHING]
     if pinned:  # the Gaussian has (almost) no width there: no interval
         out["reason"][i] += f"; no interval for {', '.join(pinned)} (at bound or singular)"
     if not out["converged"][i]:
