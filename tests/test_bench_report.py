@@ -91,9 +91,13 @@ def test_whole_measurements_list_recovery_and_both_peers():
             "median_rel_error_by_param": {"k": 0.05}, "median_signed_error_by_param": {"k": 0.01},
             "flagged_rate_by_param": {"k": 0.0}, "stderr_coverage_by_param": {"k": 0.7},
             "peers": {"scipy-jax": dict(peer, n_recordings=4, speedup=7.0), "scipy-numpy": peer}}
-    fit = dict(FIT, summary=dict(FIT["summary"], measurements=meas))
+    reads = dict(meas, median_rel_error_by_param={"k": 0.03}, peers={})
+    fit = dict(FIT, summary=dict(FIT["summary"], measurements=meas,
+                                 measurements_motor_reads=reads))
     md = to_markdown(merge([fit]))
     assert "| k | 0.05 | 0.01 | 0 | 0.7 |" in md
+    with_reads = md.split("## fit: whole measurements, motor read at 50 Hz")[1]
+    assert "| k | 0.03 | 0.01 | 0 | 0.7 |" in with_reads and "scipy" not in with_reads
     assert "| scipy-jax | 4 | 9 | 0.25 | 7 | 2e-06 |" in md
     assert "| scipy-numpy | 2 | 9 | 0.25 | 36 | 2e-06 |" in md
 

@@ -202,7 +202,9 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 35
     measurements, 8 with ``quick``), with its scipy peers on 4 of them (``scipy-numpy`` on
     2). Timings are medians of interleaved repetitions; ``compile_s`` is the first call of
-    ours minus a steady one.
+    ours minus a steady one. The full run adds ``summary["measurements_motor_reads"]``: the
+    same 35 measurements with the motor's position read at 50 Hz, each movement's timing
+    taken from the reads (no peers).
     """
     from frictionfit.bench.measurement import recovery
 
@@ -211,6 +213,9 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     else:
         out = measure(DEFAULT_MODEL, 256, 8, 32, 2, grid=True, seed=seed)
     out["summary"]["measurements"] = recovery(8 if quick else 35, seed=seed)
+    if not quick:
+        out["summary"]["measurements_motor_reads"] = recovery(35, seed=seed, n_peer=0,
+                                                              position_rate_hz=50.0)
     return out
 
 

@@ -147,9 +147,10 @@ def to_markdown(bench: Mapping) -> str:
                         [[p["config"], p["seconds_per_trial"], p["error_name"], p["error"],
                           "**yes**" if p.get("pareto") else ""] for p in points])
     for name, stage in bench.get("stages", {}).items():
-        meas = stage.get("summary", {}).get("measurements")
-        if meas:
-            lines += _measurements(name, meas)
+        for key, what in MEASUREMENT_BLOCKS.items():
+            meas = stage.get("summary", {}).get(key)
+            if meas:
+                lines += _measurements(f"{name}: {what}", meas)
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
                                        if not isinstance(v, (list, dict))])
@@ -177,9 +178,14 @@ def to_markdown(bench: Mapping) -> str:
     return "\n".join(lines)
 
 
-def _measurements(stage: str, meas: Mapping) -> list[str]:
-    """The whole-measurement section of a stage: recovery per parameter, then the peers."""
-    lines = [f"## {stage}: whole measurements", "",
+#: Summary keys of the whole-measurement blocks -> their headings.
+MEASUREMENT_BLOCKS = {"measurements": "whole measurements",
+                      "measurements_motor_reads": "whole measurements, motor read at 50 Hz"}
+
+
+def _measurements(heading: str, meas: Mapping) -> list[str]:
+    """A whole-measurement section: recovery per parameter, then the peers."""
+    lines = [f"## {heading}", "",
              f"{meas['n_recordings']} simulated measurements, {meas['channel']}: "
              f"{meas['recordings_per_s']:.3g} recordings/s (compile "
              f"{meas['compile_s']:.3g} s), converged {meas['converged_rate']:.3g}, "

@@ -19,6 +19,10 @@ def simulate(
                                                "session."),
     classes: str = typer.Option("", help="Comma-separated class labels (default: all 35), "
                                 "e.g. 'paper-1,paper-2'."),
+    motor_positions: float = typer.Option(
+        0.0, min=0.0, help="Also read the motor's position this often (Hz), as `frictionfit "
+        "rub --position-rate` does; 0: no reads, as in the lab's recordings. The whole fits "
+        "then take each movement's timing from the reads."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
     """Write simulated rubbing measurements (35 classes x sessions x measurements-per-class)."""
@@ -41,6 +45,7 @@ def simulate(
     with Progress(disable=not progress, transient=True) as bar:
         task = bar.add_task("simulating measurements", total=total)
         paths = simulate_dataset(out, seed, sessions, measurements_per_class, labels,
+                                 position_rate_hz=motor_positions,
                                  progress=lambda n: bar.advance(task, n))
     typer.echo(f"wrote {len(paths)} measurements ({len(labels)} classes, {sessions} session(s)) "
                f"to {out}")

@@ -35,6 +35,7 @@ from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
+from frictionfit.fit.motor import MotorTiming, motor_timing
 from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
@@ -60,7 +61,10 @@ class MeasurementData:
     sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
     ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1),
     the recording's ``session`` (metadata; ``None`` when absent) and ``stretch``: each
-    movement's duration over the rig's ``ramp`` (``None``: 1 for all).
+    movement's duration over the rig's ``ramp`` (``None``: 1 for all); ``motor``: the
+    movements as the motor reported them (:func:`~frictionfit.fit.motor.motor_timing`;
+    ``None`` when the recording has no position reads), which then set ``commands``,
+    ``stretch`` and the rig's starting values.
     """
 
     name: str
@@ -75,6 +79,7 @@ class MeasurementData:
     guess: dict
     session: object = None
     stretch: np.ndarray | None = None
+    motor: MotorTiming | None = None
 
     @property
     def mask(self) -> np.ndarray:
@@ -180,8 +185,24 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     t, y_mean, count = _block_means(t_grid, y, ok,
                                     _block_edges(t_grid, commands[first:], decimate, coarse))
     noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
-    return MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
+    data = MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
                            commands, signs, direction, guess, rec.metadata.get("session"))
+    motor = motor_timing(rec, commands, signs)
+    return data if motor is None else _driven_by_motor(data, motor)
+
+
+def _driven_by_motor(d: MeasurementData, motor: MotorTiming) -> MeasurementData:
+    """``d`` with each movement's onset and duration from the motor's reads, around the
+    median latency and duration (the rig's ``delay`` and ``ramp``; movements the reads
+    miss keep the median)."""
+    seen = motor.seen
+    if not seen.any():
+        return d
+    latency = float(np.median((motor.onset - d.commands)[seen]))
+    ramp = float(np.median(motor.duration[seen]))
+    return replace(d, commands=np.where(seen, motor.onset - latency, d.commands),
+                   stretch=np.where(seen, motor.duration / ramp, 1.0), motor=motor,
+                   guess=d.guess | {"delay": latency, "ramp": ramp, "accel": motor.accel})
 
 
 @lru_cache(maxsize=16)
@@ -246,7 +267,9 @@ def fit_measurements(
     session's converged first fits and fit again (the motor is the same for every recording
     of a day). ``timing="movement"``: shift each movement's command by its own latency
     deviation and stretch its duration by its own factor (both found per movement at the
-    first optimum) and fit again; ``"rig"``: one latency and duration for all. ``fix``:
+    first optimum; taken from the motor's position reads where an item has them,
+    :attr:`MeasurementData.motor`) and fit again; ``"rig"``: one latency and duration for
+    all (but the motor's, where read). ``fix``:
     name -> physical value (one, or one per item) held fixed.
     ``u0``: unconstrained starting points (of the first law; default: the data's guess).
     ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
@@ -469,10 +492,12 @@ def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
 def _with_movement_timing(models: list[MeasurementModel], chosen: np.ndarray,
                           items: Sequence[MeasurementData], result: FitResult
                           ) -> list[MeasurementData]:
-    """Items whose drive carries each movement's own onset and duration
-    (:func:`_movement_timing` at the first fit's optimum of the item's chosen model; items
-    in host threads, one per core)."""
+    """Items whose drive carries each movement's own onset and duration: the motor's where
+    it was read (kept as it is), else :func:`_movement_timing` at the first fit's optimum of
+    the item's chosen model (items in host threads, one per core)."""
     def timed(i):
+        if items[i].motor is not None:
+            return items[i]
         commands, stretch = _movement_timing(models[chosen[i]], result.u[i], items[i])
         return replace(items[i], commands=commands, stretch=stretch)
 

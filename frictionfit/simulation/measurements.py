@@ -38,7 +38,14 @@ import numpy as np
 from scipy.signal import lfilter
 
 from frictionfit._types import PathType
-from frictionfit.recording import Channel, Event, Recording, write_recording
+from frictionfit.recording import (
+    MOTOR_COLUMNS,
+    MOTOR_POSITIONS,
+    Channel,
+    Event,
+    Recording,
+    write_recording,
+)
 from frictionfit.simulation.materials import (
     CLASSES,
     SESSION_SPREAD,
@@ -61,6 +68,8 @@ _OWN = 2050  # samples of each motion window (motion 4 runs to 10.05 s)
 _LAW = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
         "relax_frac2", "tau2", "damping")
 _FORCE_SCALED = ("k", "f_kin", "f_static_excess", "damping", "drag")
+#: The actuator's positions (counts) at ``p1`` and ``p2`` when its positions are read.
+P1_COUNTS, P2_COUNTS = 2048, 2304
 
 
 def motor_profile(t: np.ndarray, start: float, duration: float, accel: float
@@ -263,8 +272,29 @@ def _truth(plan: dict, level: np.ndarray, seed: int) -> dict:
             "motions": motions, "faults": faults}
 
 
+def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
+    """The sidecar's ``motor_positions``: the motor's profile read every ``1/rate_hz`` s
+    (each request up to 0.5 ms late, the position taken 0.2-0.8 ms after it, the reply
+    1-2 ms after it), in whole counts from :data:`P1_COUNTS` to :data:`P2_COUNTS`."""
+    rng = np.random.default_rng([seed, plan["session"]["session"], CLASSES.index(plan["label"]),
+                                 plan["trial"], 0x905])
+    n = int(N_SAMPLES / RATE_HZ * rate_hz)
+    t_request = np.arange(n) / rate_hz + rng.uniform(0.0, 5e-4, n)
+    t_read = t_request + rng.uniform(2e-4, 8e-4, n)
+    t_reply = t_request + rng.uniform(1e-3, 2e-3, n)
+    accel = plan["session"]["accel_s"]
+    progress = sum(motor_profile(t_read, o_s, o_d, accel)[0] - motor_profile(t_read, b_s, b_d,
+                                                                              accel)[0]
+                   for (o_s, o_d), (b_s, b_d) in (m["moves"] for m in plan["motions"]))
+    counts = np.round(P1_COUNTS + (P2_COUNTS - P1_COUNTS) * progress)
+    return {"columns": [dict(c) for c in MOTOR_COLUMNS],
+            "reads": np.column_stack([t_request.round(6), t_reply.round(6), counts]).tolist(),
+            "rate_hz_requested": rate_hz, "reads_failed": 0, "counts_per_revolution": 4096}
+
+
 def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, *,
-                          pad_to: int = 5 * 35) -> list[Recording]:
+                          pad_to: int = 5 * 35, position_rate_hz: float = 0.0
+                          ) -> list[Recording]:
     """Simulate measurements given as ``(session, label, trial)``; forces in one batch.
 
     Parameters
@@ -276,6 +306,9 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
         Master seed; each measurement depends only on it and its own spec.
     pad_to : int
         Motions per compiled batch shape (padding; does not change the result).
+    position_rate_hz : float
+        Also read the motor's position this often (Hz; 0: not at all, as in the lab's
+        recordings), as ``frictionfit rub`` does; the reads do not change the forces.
 
     Returns
     -------
@@ -312,7 +345,9 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
         measured, level = _sensor(plan, clean)
         t, y = _apply_faults(plan, np.arange(N_SAMPLES) / RATE_HZ, measured)
         material = material_for(plan["label"])
-        events = [Event(PERIOD_S * i + dt, "move", tgt)
+        read = position_rate_hz > 0
+        events = [Event(PERIOD_S * i + dt, "move", tgt,
+                        {"position": P2_COUNTS if tgt == "p2" else P1_COUNTS} if read else {})
                   for i in range(N_MOTIONS) for dt, tgt in ((T_OUT, "p2"), (T_BACK, "p1"))]
         metadata = {"label": plan["label"], "material": material.slug, "layers": material.layers,
                     "session": plan["session"]["session"], "trial": plan["trial"],
@@ -320,6 +355,7 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
         recs.append(Recording(
             t, y, RATE_HZ, tuple(Channel(c, "N") for c in CHANNELS),
             events=events, metadata=metadata, truth=_truth(plan, level, seed),
+            extra={MOTOR_POSITIONS: _motor_positions(plan, seed, position_rate_hz)} if read else {},
             name=f"s{plan['session']['session']}_{plan['label']}_{plan['trial']:02d}"))
     return recs
 
@@ -332,6 +368,7 @@ def simulate_dataset(
     classes: Sequence[str] | None = None,
     *,
     batch: int = 35,
+    position_rate_hz: float = 0.0,
     progress: Callable[[int], None] | None = None,
 ) -> list[Path]:
     """Write ``sessions x classes x measurements_per_class`` measurements to ``out``.
@@ -350,6 +387,8 @@ def simulate_dataset(
         depend on the subset.
     batch : int
         Measurements simulated per batched JAX call.
+    position_rate_hz : float
+        The motor's position reads per second (0: none); see :func:`simulate_measurements`.
     progress : callable, optional
         Called with the number of measurements written after each batch.
 
@@ -369,7 +408,8 @@ def simulate_dataset(
     paths = []
     for start in range(0, len(specs), batch):
         chunk = specs[start:start + batch]
-        for rec in simulate_measurements(chunk, seed, pad_to=N_MOTIONS * batch):
+        for rec in simulate_measurements(chunk, seed, pad_to=N_MOTIONS * batch,
+                                         position_rate_hz=position_rate_hz):
             paths.append(write_recording(rec, Path(out) / rec.name, decimals=3))
         if progress is not None:
             progress(len(chunk))

@@ -1,0 +1,97 @@
+"""The motor's own movements from its position reads, and the whole fits driven by them."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import frictionfit.fit.measurement as measurement
+from frictionfit.cli import app
+from frictionfit.errors import Status
+from frictionfit.fit.measurement import _move_signs, fit_measurements, measurement_data
+from frictionfit.fit.motor import motor_timing
+from frictionfit.recording import MOTOR_POSITIONS, read_recording, write_recording
+from frictionfit.simulation.measurements import simulate_measurements
+
+SPECS = [(1, "carpet-1", 1), (2, "paper-2", 1), (1, "cushion-1", 2)]
+
+
+@pytest.fixture(scope="module")
+def read():
+    return simulate_measurements(SPECS, seed=7, position_rate_hz=50.0)
+
+
+def _true_moves(rec):
+    moves = [(m["move_out"], m["move_back"]) for m in rec.truth["motions"]]
+    onset = np.array([a[0] for pair in moves for a in pair])
+    stop = np.array([a[1] for pair in moves for a in pair])
+    return onset, stop - onset
+
+
+def test_reads_do_not_change_the_forces(read):
+    plain = simulate_measurements(SPECS, seed=7)
+    for a, b in zip(plain, read, strict=True):
+        np.testing.assert_array_equal(a.samples, b.samples)
+        assert a.motor_positions() is None and b.motor_positions() is not None
+
+
+def test_each_movement_timed_from_reads_at_50_hz(read, tmp_path):
+    for rec in read:
+        rec = read_recording(write_recording(rec, tmp_path / rec.name))  # as written
+        timing = motor_timing(rec, *_move_signs(rec))
+        onset, duration = _true_moves(rec)
+        assert timing.seen.all() and timing.n_reads == 502
+        # reads 20 ms apart, times known to ~1 ms: onsets to 2 ms, durations to 3 %
+        np.testing.assert_allclose(timing.onset, onset, atol=2e-3)
+        np.testing.assert_allclose(timing.duration, duration, rtol=0.03)
+        true_accel = rec.truth["session"]["accel_s"] / np.median(duration)
+        assert timing.accel == pytest.approx(true_accel, abs=0.03)
+        assert timing.rms_counts < 1.0  # whole counts: the profile fits to their rounding
+
+
+def test_too_few_reads_leave_the_timing_to_the_force(read):
+    rec = read[0]
+    block = dict(rec.extra[MOTOR_POSITIONS], reads=rec.extra[MOTOR_POSITIONS]["reads"][:30])
+    sparse = dataclasses.replace(rec, extra={MOTOR_POSITIONS: block})
+    assert motor_timing(sparse, *_move_signs(sparse)) is None
+    assert measurement_data(sparse, "index_x").motor is None
+    assert motor_timing(dataclasses.replace(rec, extra={}), *_move_signs(rec)) is None
+
+
+def test_the_whole_fit_takes_each_movements_timing_from_the_motor(read, monkeypatch):
+    items = [measurement_data(rec, "index_x") for rec in read]
+    for d, rec in zip(items, read, strict=True):
+        onset, duration = _true_moves(rec)
+        # the drive starts each movement at its command + delay and runs ramp x stretch
+        np.testing.assert_allclose(d.commands + d.guess["delay"], onset, atol=2e-3)
+        np.testing.assert_allclose(d.stretch * d.guess["ramp"], duration, rtol=0.03)
+
+    def not_searched(*args, **kwargs):
+        raise AssertionError("the force was searched for a timing the motor reported")
+
+    monkeypatch.setattr(measurement, "_movement_timing", not_searched)
+    res = fit_measurements(items, progress=False)
+    for rec, v, se, status in zip(read, res.values, res.stderr, res.status, strict=True):
+        assert status == Status.CONVERGED
+        truth = {n: np.median([m["channels"]["index_x"][n] for m in rec.truth["motions"][1:]])
+                 for n in ("k", "f_kin")}
+        # the stiff paper's k is the hard one: 23.0 +- 1.9 N/mm for 26.2
+        assert abs(v["k"] - truth["k"]) < 3 * se["k"] and v["k"] == pytest.approx(truth["k"],
+                                                                                  rel=0.15)
+        assert v["f_kin"] == pytest.approx(truth["f_kin"], rel=0.05)
+    for d, drive in zip(items, res.drive_input, strict=True):  # the motor's timing kept
+        np.testing.assert_array_equal(drive[0], d.commands)
+        np.testing.assert_array_equal(drive[2], d.stretch)
+
+
+def test_cli_simulates_the_motors_reads(tmp_path):
+    out = tmp_path / "sim"
+    result = CliRunner().invoke(app, ["simulate", "--out", str(out), "--classes", "paper-2",
+                                      "--sessions", "1", "--measurements-per-class", "1",
+                                      "--motor-positions", "50", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(out / "s1_paper-2_01")
+    assert measurement_data(rec, "index_x").motor.seen.all()
