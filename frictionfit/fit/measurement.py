@@ -7,7 +7,8 @@ moves, blocks of 10 while it holds. :func:`fit_measurements` fits
 Levenberg-Marquardt :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt` in the
 pool driver :func:`~frictionfit.fit._optx.solve_pooled` (pools of recordings, slots
 refilled): a first fit on blocks merged in pairs (each law of ``"auto"``, the larger from
-the smaller's optimum; the law by BIC), then each movement's own latency and duration and,
+the smaller's optimum; the law by BIC), then each movement's own latency and duration (from
+the motor's position reads where the recording has them, :mod:`frictionfit.fit.motor`) and,
 optionally, the session's rig held, and a second fit on the full grid. The first ``skip_motions``
 motions are simulated (they set the contact's state) but not fitted: closing the fingers
 leaves an unknown internal force.

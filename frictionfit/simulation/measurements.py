@@ -22,6 +22,9 @@ measured classes; docs/decisions.md). Effects the fitted family does not model:
 - transmission faults in about 1 motion in 6: dropped rows, NaN bursts, stuck values,
   spikes of up to tens of newtons.
 
+On request the motor's position is read as ``frictionfit rub`` reads it (a few ms of read
+latency, whole counts), into the sidecar's ``motor_positions``.
+
 The force of every motion of every measurement comes from one batched (vmapped)
 JAX call. All randomness comes from ``numpy`` generators keyed on
 ``(seed, session, class, trial)``, so a measurement does not depend on which other
