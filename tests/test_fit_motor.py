@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 import frictionfit.fit.measurement as measurement
+from frictionfit.acquisition.actuator import SimulatedGripper
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit.measurement import _move_signs, fit_measurements, measurement_data
@@ -50,6 +51,40 @@ def test_each_movement_timed_from_reads_at_50_hz(read, tmp_path):
         true_accel = rec.truth["session"]["accel_s"] / np.median(duration)
         assert timing.accel == pytest.approx(true_accel, abs=0.03)
         assert timing.rms_counts < 1.0  # whole counts: the profile fits to their rounding
+
+
+def _with_reads(rec, position):
+    """``rec`` with its reads' positions replaced by ``position(t)`` at their times."""
+    block = rec.extra[MOTOR_POSITIONS]
+    reads = np.array(block["reads"])
+    reads[:, 2] = np.round(position(reads[:, :2].mean(axis=1)))
+    return dataclasses.replace(rec, extra={MOTOR_POSITIONS: dict(block, reads=reads.tolist())})
+
+
+def test_a_raised_cosine_motor_is_timed_too(read):
+    # the acquisition's simulated gripper moves on a raised cosine, not a trapezoid
+    rec = read[1]
+    commands, signs = _move_signs(rec)
+    gripper = SimulatedGripper(2048.0, move_s=0.12, latency_s=0.02,
+                               clock=iter([0.0, *commands]).__next__)
+    for sign in signs:
+        gripper.move_to(2304.0 if sign > 0 else 2048.0)
+    timing = motor_timing(_with_reads(rec, gripper.trajectory), commands, signs)
+    assert timing.seen.all()
+    np.testing.assert_allclose(timing.onset, commands + 0.02, atol=3e-3)
+    np.testing.assert_allclose(timing.duration, 0.12, rtol=0.05)
+
+
+def test_reads_that_show_no_movement_are_not_used(read):
+    rec = read[0]
+    commands, signs = _move_signs(rec)
+    # a drive that jumps between reads: no read inside any movement
+    jumps = _with_reads(rec, lambda t: 2048.0 + 256.0 * (np.searchsorted(commands, t) % 2))
+    timing = motor_timing(jumps, commands, signs)
+    assert timing is None or not timing.seen.any()
+    assert measurement_data(jumps, "index_x").motor is None
+    noisy = _with_reads(rec, lambda t: 2048.0 + 100.0 * np.sin(40.0 * t))  # not a trapezoid
+    assert motor_timing(noisy, commands, signs) is None
 
 
 def test_too_few_reads_leave_the_timing_to_the_force(read):

@@ -29,6 +29,9 @@ __all__ = ["MotorTiming", "motor_timing"]
 MIN_READS = 2
 #: Reads per compiled shape (padded with weight 0): 20 s of reads at 50 Hz.
 READS_CHUNK = 1024
+#: Largest RMS misfit of the reads, as a share of the movement's step: beyond it the reads
+#: do not show trapezoid-like movements (a stalled or slipping drive) and are not used.
+MAX_MISFIT = 0.05
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,10 @@ def _crossing(t: np.ndarray, x: np.ndarray, level: float) -> float:
 
 def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> MotorTiming | None:
     """The motor's movements after the ``move`` ``commands`` (s; ``signs`` +1 out, -1 back)
-    from ``rec``'s position reads; None when ``rec`` holds none or too few to fit."""
+    from ``rec``'s position reads; None when ``rec`` holds none, too few to fit, or reads
+    that no trapezoid-like movements describe (misfit above :data:`MAX_MISFIT`). A
+    movement is timed only where at least :data:`MIN_READS` reads fall inside it and it
+    lies between its command and the next one."""
     reads = rec.motor_positions()
     if reads is None:
         return None
@@ -115,9 +121,11 @@ def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> Mot
     m = commands.size
     onset, duration = z[3:3 + m], np.exp(z[3 + m:])
     inside = ((t[:, None] > onset[None]) & (t[:, None] < (onset + duration)[None])).sum(axis=0)
-    seen = inside >= MIN_READS
+    seen = (inside >= MIN_READS) & (onset >= commands) & (onset + duration <= ends)
     accel = float(0.5 / (1.0 + np.exp(-z[2])))
     share = np.asarray(trapezoid((t[:, None] - onset[None]) / duration[None], accel)[0])
     rms = float(np.sqrt(np.mean((z[0] + z[1] * share @ signs - x) ** 2)))
+    if rms > MAX_MISFIT * abs(z[1]):
+        return None
     return MotorTiming(np.where(seen, onset, np.nan), np.where(seen, duration, np.nan), accel,
                        rms, int(t.size))
