@@ -20,11 +20,17 @@ def fd_slope(f: Callable, u, h: float = DELTA_STEP):
     return (f(u + h) - f(u - h)) / (2 * h)
 
 
-def normal_equations(residual: Callable, x):
+def normal_equations(residual: Callable, x, has_aux: bool = False):
     """``(|r|^2 / 2, J^T J, J^T r)`` of ``residual`` at ``x`` (traced; a forward-mode
-    Jacobian: few parameters, many residuals)."""
-    jac, r = jax.jacfwd(lambda z: (residual(z),) * 2, has_aux=True)(x)
-    return 0.5 * r @ r, jac.T @ jac, jac.T @ r
+    Jacobian: few parameters, many residuals). ``has_aux``: ``residual`` returns ``(r,
+    aux)``, and so does this, ``((|r|^2 / 2, J^T J, J^T r), aux)``."""
+    def both(z):
+        r, aux = residual(z) if has_aux else (residual(z), None)
+        return r, (r, aux)
+
+    jac, (r, aux) = jax.jacfwd(both, has_aux=True)(x)
+    out = (0.5 * r @ r, jac.T @ jac, jac.T @ r)
+    return (out, aux) if has_aux else out
 
 
 def _unit_diagonal(a: np.ndarray):

@@ -37,6 +37,8 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from frictionfit.fit._numerics import normal_equations
+
 __all__ = ["BatchedLevenbergMarquardt"]
 
 RUNNING, CONVERGED, NONFINITE = 0, 1, 2
@@ -160,14 +162,9 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     def step(self, fn, y, args, options, state, tags):
         s, _ = state
-
-        def residual(u):
-            r, aux = fn(u, args)
-            return r, (r, aux)
-
-        jac, (r, aux) = jax.jacfwd(residual, has_aux=True)(s.cand)
-        s = _iteration(s, (0.5 * r @ r, jac.T @ jac, jac.T @ r), ftol=self.ftol,
-                       xtol=self.rtol, gtol=self.atol, lambda0=self.lambda0)
+        evaluated, aux = normal_equations(lambda u: fn(u, args), s.cand, has_aux=True)
+        s = _iteration(s, evaluated, ftol=self.ftol, xtol=self.rtol, gtol=self.atol,
+                       lambda0=self.lambda0)
         return s.u, (s, aux), aux
 
     def terminate(self, fn, y, args, options, state, tags):
