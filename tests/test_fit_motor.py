@@ -53,6 +53,15 @@ def test_each_movement_timed_from_reads_at_50_hz(read, tmp_path):
         assert timing.rms_counts < 1.0  # whole counts: the profile fits to their rounding
 
 
+def test_reads_of_any_rate_are_used():
+    rec, = simulate_measurements([(1, "floor-mat-1", 1)], seed=7, position_rate_hz=200.0)
+    timing = motor_timing(rec, *_move_signs(rec))  # 2010 reads: two compiled chunks
+    onset, duration = _true_moves(rec)
+    assert timing.n_reads == 2010 and timing.seen.all()
+    np.testing.assert_allclose(timing.onset, onset, atol=1e-3)
+    np.testing.assert_allclose(timing.duration, duration, rtol=0.01)
+
+
 def _with_reads(rec, position):
     """``rec`` with its reads' positions replaced by ``position(t)`` at their times."""
     block = rec.extra[MOTOR_POSITIONS]

@@ -27,7 +27,8 @@ __all__ = ["MotorTiming", "motor_timing"]
 
 #: Fewest reads inside a movement (between its onset and its stop) for its own timing.
 MIN_READS = 2
-#: Reads per compiled shape (padded with weight 0): 20 s of reads at 50 Hz.
+#: The reads are padded (weight 0) to a multiple of this: one compiled shape per 20 s of
+#: reads at 50 Hz.
 READS_CHUNK = 1024
 #: Largest RMS misfit of the reads, as a share of the movement's step: beyond it the reads
 #: do not show trapezoid-like movements (a stalled or slipping drive) and are not used.
@@ -52,22 +53,27 @@ class MotorTiming:
         return np.isfinite(self.onset)
 
 
+def _accel(z):
+    """The acceleration share (0 to 0.5) of the unconstrained ``z[2]``."""
+    return 0.5 * jax.nn.sigmoid(z[2])
+
+
 @lru_cache(maxsize=4)
 def _solve(n_moves: int):
-    """Jitted ``(z0, t, x, weight, signs) -> (z, ok)``: the least-squares fit of
-    ``z = (level, step, logit accel, onsets, log durations)`` to the reads."""
+    """Jitted ``(z0, t, x, weight, signs) -> (z, converged, residuals)``: the least-squares
+    fit of ``z = (level, step, logit of 2 accel, onsets, log durations)`` to the reads."""
 
     def residual(z, args):
         t, x, weight, signs = args
         onset, duration = z[3:3 + n_moves], jnp.exp(z[3 + n_moves:])
-        accel = 0.5 * jax.nn.sigmoid(z[2])
-        share = trapezoid((t[:, None] - onset[None]) / duration[None], accel)[0]
+        share = trapezoid((t[:, None] - onset[None]) / duration[None], _accel(z))[0]
         return weight * (z[0] + z[1] * share @ signs - x)
 
     def solve(z0, t, x, weight, signs):
-        sol = optx.least_squares(residual, BatchedLevenbergMarquardt(), z0,
-                                 args=(t, x, weight, signs), max_steps=200, throw=False)
-        return sol.value, sol.result == optx.RESULTS.successful
+        args = (t, x, weight, signs)
+        sol = optx.least_squares(residual, BatchedLevenbergMarquardt(), z0, args=args,
+                                 max_steps=200, throw=False)
+        return sol.value, sol.result == optx.RESULTS.successful, residual(sol.value, args)
 
     return jax.jit(solve)
 
@@ -78,8 +84,9 @@ def _crossing(t: np.ndarray, x: np.ndarray, level: float) -> float:
     k = int(np.argmax(above))
     if not above[k] or k == 0:
         return np.nan
-    return float(np.interp(level, *((x[k - 1:k + 1], t[k - 1:k + 1]) if x[k] > x[k - 1]
-                                    else (x[k - 1:k + 1][::-1], t[k - 1:k + 1][::-1]))))
+    xs, ts = x[k - 1:k + 1], t[k - 1:k + 1]
+    order = np.argsort(xs)
+    return float(np.interp(level, xs[order], ts[order]))
 
 
 def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> MotorTiming | None:
@@ -94,7 +101,7 @@ def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> Mot
     t, x = (np.asarray(a, dtype=np.float64) for a in reads)
     ok = np.isfinite(t) & np.isfinite(x)
     t, x = t[ok], x[ok]
-    if t.size < 4 * commands.size or t.size > READS_CHUNK:
+    if t.size < 4 * commands.size:
         return None
     ends = np.r_[commands[1:], np.inf]
     before = x[t < commands[0]]
@@ -111,21 +118,19 @@ def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> Mot
         onset0.append(mid - 0.06 if np.isfinite(mid) else c + 0.02)
         duration0.append(0.12)
     z0 = np.r_[level, step, 0.0, onset0, np.log(duration0)]
-    pad = READS_CHUNK - t.size
-    z, converged = _solve(commands.size)(
-        jnp.asarray(z0), jnp.asarray(np.r_[t, np.zeros(pad)]), jnp.asarray(np.r_[x, np.zeros(pad)]),
-        jnp.asarray(np.r_[np.ones(t.size), np.zeros(pad)]), jnp.asarray(signs, dtype=np.float64))
+    pad = np.zeros(-t.size % READS_CHUNK)
+    z, converged, resid = _solve(commands.size)(
+        jnp.asarray(z0), jnp.asarray(np.r_[t, pad]), jnp.asarray(np.r_[x, pad]),
+        jnp.asarray(np.r_[np.ones(t.size), pad]), jnp.asarray(signs, dtype=np.float64))
     z = np.asarray(z)
     if not bool(converged) or not np.all(np.isfinite(z)):
+        return None
+    rms = float(np.sqrt(np.mean(np.asarray(resid)[: t.size] ** 2)))
+    if rms > MAX_MISFIT * abs(z[1]):
         return None
     m = commands.size
     onset, duration = z[3:3 + m], np.exp(z[3 + m:])
     inside = ((t[:, None] > onset[None]) & (t[:, None] < (onset + duration)[None])).sum(axis=0)
     seen = (inside >= MIN_READS) & (onset >= commands) & (onset + duration <= ends)
-    accel = float(0.5 / (1.0 + np.exp(-z[2])))
-    share = np.asarray(trapezoid((t[:, None] - onset[None]) / duration[None], accel)[0])
-    rms = float(np.sqrt(np.mean((z[0] + z[1] * share @ signs - x) ** 2)))
-    if rms > MAX_MISFIT * abs(z[1]):
-        return None
-    return MotorTiming(np.where(seen, onset, np.nan), np.where(seen, duration, np.nan), accel,
-                       rms, int(t.size))
+    return MotorTiming(np.where(seen, onset, np.nan), np.where(seen, duration, np.nan),
+                       float(_accel(z)), rms, int(t.size))
