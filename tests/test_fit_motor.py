@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -139,3 +140,11 @@ def test_cli_simulates_the_motors_reads(tmp_path):
     assert result.exit_code == 0, result.output
     rec = read_recording(out / "s1_paper-2_01")
     assert measurement_data(rec, "index_x").motor.seen.all()
+    write_recording(dataclasses.replace(rec, extra={}, name="s1_paper-2_02"),
+                    out / "s1_paper-2_02")  # the same without its reads
+    result = CliRunner().invoke(app, ["fit", str(out), "--channel", "index_x", "--out",
+                                      str(tmp_path / "fits.csv")])
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(tmp_path / "fits.csv")
+    assert dict(zip(table["trial"], table["timing"], strict=True)) == {
+        "s1_paper-2_01/index_x": "motor", "s1_paper-2_02/index_x": "force"}

@@ -244,6 +244,8 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     ids = [f"{d.name}/{d.channel}" for d in items]
     frame = result.to_frame(ids)
     frame.insert(1, "problems", problems)
+    # where each movement's onset and duration came from: the motor's reads or the force
+    frame.insert(2, "timing", ["motor" if d.motor is not None else "force" for d in items])
     _write(frame, output.table, "recording channels", result.wall_s)
     _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:
