@@ -286,9 +286,11 @@ def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
     t_read = t_request + rng.uniform(2e-4, 8e-4, n)
     t_reply = t_request + rng.uniform(1e-3, 2e-3, n)
     accel = plan["session"]["accel_s"]
-    progress = sum(motor_profile(t_read, o_s, o_d, accel)[0] - motor_profile(t_read, b_s, b_d,
-                                                                              accel)[0]
-                   for (o_s, o_d), (b_s, b_d) in (m["moves"] for m in plan["motions"]))
+    progress = np.zeros(n)  # 0 at p1, 1 at p2
+    for m in plan["motions"]:
+        (out_s, out_d), (back_s, back_d) = m["moves"]
+        progress += (motor_profile(t_read, out_s, out_d, accel)[0]
+                     - motor_profile(t_read, back_s, back_d, accel)[0])
     counts = np.round(P1_COUNTS + (P2_COUNTS - P1_COUNTS) * progress)
     return {"columns": [dict(c) for c in MOTOR_COLUMNS],
             "reads": np.column_stack([t_request.round(6), t_reply.round(6), counts]).tolist(),
