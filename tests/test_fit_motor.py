@@ -13,6 +13,7 @@ import frictionfit.fit.measurement as measurement
 from frictionfit.acquisition.actuator import SimulatedGripper
 from frictionfit.cli import app
 from frictionfit.errors import Status
+from frictionfit.features._base import content_key
 from frictionfit.fit.measurement import _move_signs, fit_measurements, measurement_data
 from frictionfit.fit.motor import motor_timing
 from frictionfit.recording import MOTOR_POSITIONS, read_recording, write_recording
@@ -95,6 +96,13 @@ def test_reads_that_show_no_movement_are_not_used(read):
     assert measurement_data(jumps, "index_x").motor is None
     noisy = _with_reads(rec, lambda t: 2048.0 + 100.0 * np.sin(40.0 * t))  # not a trapezoid
     assert motor_timing(noisy, commands, signs) is None
+
+
+def test_reads_are_part_of_a_recordings_cache_key(read):
+    # cached feature rows of the fitted sets depend on the reads
+    plain = dataclasses.replace(read[0], extra={})
+    assert content_key(plain) != content_key(read[0])
+    assert content_key(plain) == content_key(dataclasses.replace(read[0], extra={}))
 
 
 def test_too_few_reads_leave_the_timing_to_the_force(read):

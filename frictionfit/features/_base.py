@@ -54,12 +54,14 @@ def content_key(rec: Recording) -> str:
     """A hash of everything a feature may read from ``rec`` (not its name or path)."""
     key = _KEYS.get(rec)
     if key is None:
-        key = joblib.hash((
-            rec.t, rec.samples, rec.sample_rate_hz,
-            [(c.name, c.unit) for c in rec.channels],
-            [(e.t, e.kind, e.target) for e in rec.events],
-            sorted((str(k), repr(v)) for k, v in rec.metadata.items()),
-        ))
+        parts = [rec.t, rec.samples, rec.sample_rate_hz,
+                 [(c.name, c.unit) for c in rec.channels],
+                 [(e.t, e.kind, e.target) for e in rec.events],
+                 sorted((str(k), repr(v)) for k, v in rec.metadata.items())]
+        reads = rec.motor_positions()  # the fitted sets time each movement from them
+        if reads is not None:  # (a recording without reads keeps its key)
+            parts.append(reads)
+        key = joblib.hash(tuple(parts))
         _KEYS[rec] = key
     return key
 
