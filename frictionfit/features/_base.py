@@ -35,7 +35,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from frictionfit.errors import DatasetError
-from frictionfit.recording import Recording
+from frictionfit.recording import MOTOR_POSITIONS, Recording
 
 __all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key", "median_over_motions"]
 
@@ -58,7 +58,7 @@ def content_key(rec: Recording) -> str:
                  [(c.name, c.unit) for c in rec.channels],
                  [(e.t, e.kind, e.target) for e in rec.events],
                  sorted((str(k), repr(v)) for k, v in rec.metadata.items())]
-        reads = rec.motor_positions()  # the fitted sets time each movement from them
+        reads = rec.extra.get(MOTOR_POSITIONS)  # the fitted sets time movements from them
         if reads is not None:  # (a recording without reads keeps its key)
             parts.append(reads)
         key = joblib.hash(tuple(parts))
