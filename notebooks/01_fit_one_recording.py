@@ -164,7 +164,8 @@ moves = [(tm["move_out"], tm["move_back"]) for tm in with_reads.truth["motions"]
 true_onset = np.array([a[0] for pair in moves for a in pair])
 true_duration = np.array([a[1] - a[0] for pair in moves for a in pair])
 rows, timing = {}, {}
-for source, r in (("motor's reads", with_reads), ("force", dataclasses.replace(with_reads, extra={}))):
+without_reads = dataclasses.replace(with_reads, extra={})
+for source, r in (("motor's reads", with_reads), ("force", without_reads)):
     fit = fit_measurements([measurement_data(r, "index_x")], model="relaxation2")
     v = fit.values[0]
     commands, _, stretch = (np.asarray(a) for a in fit.drive_input[0])
