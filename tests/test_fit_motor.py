@@ -105,6 +105,22 @@ def test_reads_are_part_of_a_recordings_cache_key(read):
     assert content_key(plain) == content_key(dataclasses.replace(read[0], extra={}))
 
 
+def test_malformed_reads_are_named_and_the_forces_still_fitted(read):
+    bad = dataclasses.replace(read[0], extra={MOTOR_POSITIONS: {"columns": [{"name": "t"}],
+                                                                "reads": [[0.1]]}})
+    with pytest.warns(UserWarning, match="s1_carpet-1_01.*malformed 'motor_positions'.*force"):
+        d = measurement_data(bad, "index_x")
+    assert d.motor is None and d.y.size > 1000
+    assert content_key(bad) != content_key(read[0])
+
+
+def test_a_recordings_channels_share_one_timing(read):
+    commands, signs = _move_signs(read[0])
+    assert motor_timing(read[0], commands, signs) is motor_timing(read[0], commands, signs)
+    assert (measurement_data(read[0], "thumb_x").motor
+            is measurement_data(read[0], "index_x").motor)
+
+
 def test_too_few_reads_leave_the_timing_to_the_force(read):
     rec = read[0]
     block = dict(rec.extra[MOTOR_POSITIONS], reads=rec.extra[MOTOR_POSITIONS]["reads"][:30])
