@@ -73,7 +73,8 @@ def numpy_contact_force(x: np.ndarray, dt, v: dict) -> np.ndarray:
         coef.append((frac, np.exp(-h), g))
     k, f_kin, excess = v["k"], v["f_kin"], get("f_static_excess")
     damping, wear = get("damping"), get("wear")
-    half_travel = 0.5 * np.sum(np.abs(np.diff(x)))
+    if wear is not None:
+        half_travel = 0.5 * np.sum(np.abs(np.diff(x)))
     z = s = travel = 0.0
     ws = [0.0] * len(coef)
     x_old, direction_of_motion = x[0], 1.0

@@ -153,18 +153,16 @@ def _row(data: tuple, i: int) -> tuple:
 
 
 def numpy_predict(model: MeasurementModel, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
-                  signs: np.ndarray, direction: float, stretch: np.ndarray | None = None
-                  ) -> np.ndarray:
+                  signs: np.ndarray, direction: float, stretch: np.ndarray) -> np.ndarray:
     """Plain NumPy twin of ``model.predict``: the channel (N) at increasing times ``t`` (s).
 
     ``commands`` (s, increasing; each movement's own latency included where fitted) and
     ``signs`` (+1 out, -1 back) of the ``move`` events; ``stretch``: each movement's
-    duration over ``ramp`` (default 1). The law is
+    duration over ``ramp``. The law is
     :func:`~frictionfit.bench.fit.numpy_contact_force`, one loop over the whole measurement,
     so every stroke starts from the state the previous one left.
     """
     v = {p.name: p.to_physical(np.float64(u[i])) for i, p in enumerate(model.params)}
-    stretch = np.ones_like(commands) if stretch is None else stretch
     x, speed = _finger(v, t, commands, signs, stretch, model.stroke_mm)
     dt = np.diff(t, prepend=2.0 * t[0] - t[1])
     force = numpy_contact_force(x, dt, v) + v["drag"] * speed

@@ -62,7 +62,7 @@ class MeasurementData:
     sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
     ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1),
     the recording's ``session`` (metadata; ``None`` when absent) and ``stretch``: each
-    movement's duration over the rig's ``ramp`` (``None``: 1 for all); ``motor``: the
+    movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored as ones); ``motor``: the
     movements as the motor reported them (:func:`~frictionfit.fit.motor.motor_timing`;
     ``None`` when the recording has no position reads), which then set ``commands``,
     ``stretch`` and the rig's starting values.
@@ -82,6 +82,10 @@ class MeasurementData:
     stretch: np.ndarray | None = None
     motor: MotorTiming | None = None
 
+    def __post_init__(self):
+        if self.stretch is None:  # frozen: set once, so every reader sees an array
+            object.__setattr__(self, "stretch", np.ones_like(self.commands, dtype=np.float64))
+
     @property
     def mask(self) -> np.ndarray:
         """The blocks the fit uses."""
@@ -90,8 +94,7 @@ class MeasurementData:
     @property
     def drive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(commands, signs, stretch)``: what moves the finger (the model's drive data)."""
-        stretch = np.ones_like(self.commands) if self.stretch is None else self.stretch
-        return self.commands, self.signs, stretch
+        return self.commands, self.signs, self.stretch
 
     def driven_by(self, drive: tuple) -> MeasurementData:
         """This item with a fit's drive (``FitResult.drive_input[i]``: each movement's timing
