@@ -24,7 +24,9 @@ time is taken as ``lag_s`` before the detected start.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
@@ -166,13 +168,39 @@ def suspect_samples(grid: np.ndarray, *, stuck_min: int = STUCK_MIN
     return spike, stuck
 
 
-def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+class CheckedGrid(NamedTuple):
+    """A recording on its uniform grid (:func:`regrid`: ``t`` in s, ``samples`` NaN where
+    dropped) and the faults :func:`suspect_samples` finds there (``spike``, ``stuck``).
+    Read-only: shared by everything that reads the recording."""
+
+    t: np.ndarray
+    samples: np.ndarray
+    spike: np.ndarray
+    stuck: np.ndarray
+
+
+_CHECKED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def checked_grid(rec: Recording) -> CheckedGrid:
+    """``rec``'s :class:`CheckedGrid`, computed once per recording (the segmentation and
+    every channel's fit look for the same faults)."""
+    if rec not in _CHECKED:
+        t, grid = regrid(rec)
+        found = CheckedGrid(t, grid, *suspect_samples(grid))
+        for a in found:
+            a.setflags(write=False)
+        _CHECKED[rec] = found
+    return _CHECKED[rec]
+
+
+def _combined(checked: CheckedGrid) -> tuple[np.ndarray, np.ndarray]:
     """One signal from all channels (first principal component, N) and its validity mask.
 
     Missing samples, spikes and stuck values are masked, then bridged linearly so the
     filters and the component see no holes.
     """
-    spike, stuck = suspect_samples(grid)
+    grid, spike, stuck = checked.samples, checked.spike, checked.stuck
     x = np.array(grid, dtype=np.float64)
     ok = np.isfinite(x) & ~spike & ~stuck[:, None]
     idx = np.arange(x.shape[0])
@@ -186,14 +214,19 @@ def _combined(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centred @ vt[0], ok.all(axis=1)
 
 
-def _best(t: np.ndarray, y: np.ndarray, w: np.ndarray, designs: np.ndarray) -> int:
-    """Index of the design (G, n, p) whose weighted least-squares fit leaves the least RSS."""
-    xwt = np.swapaxes(designs * w[None, :, None], 1, 2)  # (G, p, n)
-    xtx = xwt @ designs + 1e-12 * np.eye(designs.shape[2])
-    xty = xwt @ y  # (G, p)
-    beta = np.linalg.solve(xtx, xty[..., None])[..., 0]
-    rss = float((w * y) @ y) - np.sum(beta * xty, axis=1)
-    return int(np.argmin(rss))
+def _best(y: np.ndarray, w: np.ndarray, common: np.ndarray, varying: np.ndarray) -> int:
+    """Index ``g`` of the design ``[common, varying[g]]`` (columns ``(n, q)`` and ``(G, n,
+    m)``) whose weighted least-squares fit of ``y`` leaves the least RSS: the common
+    columns are projected out once, so each candidate costs an ``m x m`` solve."""
+    sw = np.sqrt(w)
+    q, _ = np.linalg.qr(common * sw[:, None])
+    y_perp = y * sw - q @ (q.T @ (y * sw))
+    c = varying * sw[None, :, None]
+    c_perp = c - q @ (q.T @ c)
+    gram = np.swapaxes(c_perp, 1, 2) @ c_perp + 1e-12 * np.eye(varying.shape[2])
+    b = np.swapaxes(c_perp, 1, 2) @ y_perp  # (G, m)
+    explained = np.sum(b * np.linalg.solve(gram, b[..., None])[..., 0], axis=1)
+    return int(np.argmax(explained))
 
 
 def _refine_start(s: np.ndarray, ok: np.ndarray, rate: float, lo: int, hi: int) -> float | None:
@@ -213,9 +246,9 @@ def _refine_start(s: np.ndarray, ok: np.ndarray, rate: float, lo: int, hi: int) 
     tt = (win - win[0]) / rate
     t0s = np.arange(max(win[0] + 5, c - int(0.04 * rate)), c, _GRID_S * rate)
     h = np.clip(tt[None, :] - (t0s[:, None] - win[0]) / rate, 0.0, None)
-    one = np.ones_like(h)
-    designs = np.stack([one, one * tt, h, h**2, h**3], axis=-1)
-    return float(t0s[_best(tt, s[win], ok[win].astype(float), designs)])
+    common = np.stack([np.ones_like(tt), tt], axis=1)
+    return float(t0s[_best(s[win], ok[win].astype(float), common,
+                           np.stack([h, h**2, h**3], axis=-1))])
 
 
 def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign: float,
@@ -246,13 +279,10 @@ def _refine_stop(s: np.ndarray, ok: np.ndarray, rate: float, start: float, sign:
     tt = (win - win[0]) / rate
     t0s = np.arange(max(c - int(0.01 * rate), a), min(c + int(0.01 * rate), b), _GRID_S * rate)
     widths = np.arange(0.004, 0.022, 0.002)
-    cand = [(t0, wd) for t0 in t0s for wd in widths]
-    t0v = np.array([(c0 - win[0]) / rate for c0, _ in cand])
-    wv = np.array([wd for _, wd in cand])
-    ramp = np.clip((t0v[:, None] - tt[None, :]) / wv[:, None], 0.0, 1.0)
-    one = np.ones_like(ramp)
-    designs = np.stack([one, one * tt, one * tt**2, ramp], axis=-1)
-    return float(cand[_best(tt, s[win], ok[win].astype(float), designs)][0])
+    t0v, wv = (a.ravel() for a in np.meshgrid(t0s, widths, indexing="ij"))
+    ramp = np.clip(((t0v[:, None] - win[0]) / rate - tt[None, :]) / wv[:, None], 0.0, 1.0)
+    common = np.stack([np.ones_like(tt), tt, tt**2], axis=1)
+    return float(t0v[_best(s[win], ok[win].astype(float), common, ramp[..., None])])
 
 
 def _stops(s: np.ndarray, ok: np.ndarray, rate: float, starts: list[float | None],
@@ -324,9 +354,10 @@ def detect_movements(
     list of Movement
         In time order.
     """
-    t, grid = regrid(rec)
+    checked = checked_grid(rec)
+    t = checked.t
     rate = rec.sample_rate_hz
-    s, ok = _combined(grid)
+    s, ok = _combined(checked)
     cmds = [(e.t, e.target) for e in rec.events if e.kind == "move" and e.target in ("p1", "p2")]
     found: list[tuple[str, float | None, float | None]] = []  # target, command, start (samples)
     if use_events and cmds:
@@ -437,9 +468,9 @@ def _masked_grid(rec: Recording, mask_faults: bool, filter_n: int | None):
     """The uniform grid of ``rec`` (see :func:`regrid`) with spikes and stuck rows set to NaN
     (``mask_faults``), then filtered (``filter_n``); and the faults found before: missing
     samples, spikes and stuck rows."""
-    t, grid = regrid(rec)
+    t, grid, spike, stuck = checked_grid(rec)
+    grid = grid.copy()
     missing = ~np.isfinite(grid)
-    spike, stuck = suspect_samples(grid)
     if mask_faults:
         grid[spike | stuck[:, None]] = np.nan
     if filter_n:

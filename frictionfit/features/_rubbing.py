@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 
 import numpy as np
@@ -13,6 +14,9 @@ from frictionfit.segmentation import Motion, segment
 #: The four in-plane force channels of the rubbing rig (OptoForce sensors), N.
 RUBBING_CHANNELS = ("thumb_x", "thumb_y", "index_x", "index_y")
 PHASES = ("out", "back")
+#: Each recording's motions by ``filter_n``: the feature sets of one pipeline (measured and
+#: fitted) ask for the same recordings' motions.
+_SEGMENTED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def motions(rec: Recording, channels: Sequence[str], filter_n: int | None = None) -> list[Motion]:
@@ -21,7 +25,10 @@ def motions(rec: Recording, channels: Sequence[str], filter_n: int | None = None
     if missing:
         raise RecordingError(f"no channel {missing[0]!r}; channels are {list(rec.channel_names)}",
                              path=rec.name, channel=missing[0])
-    found = segment(rec, filter_n=filter_n)
+    per_recording = _SEGMENTED.setdefault(rec, {})
+    if filter_n not in per_recording:
+        per_recording[filter_n] = segment(rec, filter_n=filter_n)
+    found = list(per_recording[filter_n])
     if not found:
         raise RecordingError("no complete motion after the preparatory one", path=rec.name)
     return found

@@ -42,7 +42,7 @@ from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import RIG, to_unconstrained
 from frictionfit.recording import Recording
-from frictionfit.segmentation import moving_average, regrid, suspect_samples
+from frictionfit.segmentation import checked_grid, moving_average
 
 __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
            "profile_drops", "residual_fn", "stack_items"]
@@ -62,10 +62,10 @@ class MeasurementData:
     sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
     ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1),
     the recording's ``session`` (metadata; ``None`` when absent) and ``stretch``: each
-    movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored as ones); ``motor``: the
-    movements as the motor reported them (:func:`~frictionfit.fit.motor.motor_timing`;
-    ``None`` when the recording has no position reads), which then set ``commands``,
-    ``stretch`` and the rig's starting values.
+    movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored as ones);
+    ``motor``: the movements as the motor reported them
+    (:func:`~frictionfit.fit.motor.motor_timing`; ``None`` when the recording has no
+    position reads), which then set ``commands``, ``stretch`` and the rig's starting values.
     """
 
     name: str
@@ -177,8 +177,7 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
         raise ValueError(f"{rec.name}: no channel {channel!r}; channels are "
                          f"{list(rec.channel_names)}")
     commands, signs = _move_signs(rec)
-    t_grid, grid = regrid(rec)
-    spike, stuck = suspect_samples(grid)
+    t_grid, grid, spike, stuck = checked_grid(rec)
     j = rec.channel_names.index(channel)
     ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck
     y = np.where(ok, grid[:, j], 0.0)
