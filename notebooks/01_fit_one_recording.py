@@ -22,6 +22,7 @@
 #
 # We use a small simulated measurement shipped in `data/` (remade by `frictionfit simulate`),
 # so the generating parameters are stored with it and we can check the fit against them.
+# Like a `frictionfit rub` recording, it carries the motor's position reads (50 Hz).
 
 # %%
 import tempfile
@@ -111,7 +112,8 @@ pd.DataFrame(rows).round(4)
 # `k` and the movement duration trade off, and it starts from rest though the previous
 # stroke left a held force. `fit_measurements` fits the recording whole instead: one
 # motor (delay, movement duration, acceleration share of a trapezoid velocity profile,
-# and each movement's own latency and duration), one sensor (offset, drift, a leak with the
+# and each movement's own latency and duration, taken here from the motor's position
+# reads the recording carries), one sensor (offset, drift, a leak with the
 # finger's travel) and one contact law (`relaxation2`: two Maxwell branches, plus a sliding
 # drag and a `wear` of the kinetic level with the finger's travel), the law's state carried
 # from stroke to stroke. The first motion is simulated but not fitted (it starts from the
@@ -146,27 +148,25 @@ axr.set(xlabel="time [s]", ylabel="residual [N]")
 ax.legend(fontsize=8, ncol=3)
 
 # %% [markdown]
-# ## When the motor's position was read
-# Above, each movement's onset and duration were found in the force. `frictionfit rub`
-# also reads the motor's position between its commands (50 Hz by default), and where a
-# recording has those reads the whole fit takes each movement's timing from them
-# (`frictionfit.fit.motor`). The sample was made by `frictionfit simulate --seed 2026`; the
-# same measurement simulated with the reads (`position_rate_hz=50`) has the same forces.
-# We fit it with and without its reads and compare the movements' timing with the truth.
+# ## Without the motor's position reads
+# `frictionfit rub` reads the motor's position between its commands (50 Hz by default), and
+# where a recording has those reads the whole fit takes each movement's onset and duration
+# from them (`frictionfit.fit.motor`), as above. A recording without them (the lab's, for
+# one) has its movements' timing searched in the force instead. We fit the same recording
+# with its reads dropped (`dataclasses.replace(rec, extra={})`) and compare both fits, and
+# the movements' timing they used, with the truth.
 
 # %%
 import dataclasses
 
-from frictionfit.simulation.measurements import simulate_measurements
-
-with_reads, = simulate_measurements([(1, "paper-1", 1)], seed=2026, position_rate_hz=50.0)
-moves = [(tm["move_out"], tm["move_back"]) for tm in with_reads.truth["motions"][1:]]
+moves = [(tm["move_out"], tm["move_back"]) for tm in rec.truth["motions"][1:]]
 true_onset = np.array([a[0] for pair in moves for a in pair])
 true_duration = np.array([a[1] - a[0] for pair in moves for a in pair])
+without_reads = measurement_data(dataclasses.replace(rec, extra={}), "index_x")
+fits = {"motor's reads": whole,
+        "force": fit_measurements([without_reads], model="relaxation2")}
 rows, timing = {}, {}
-without_reads = dataclasses.replace(with_reads, extra={})
-for source, r in (("motor's reads", with_reads), ("force", without_reads)):
-    fit = fit_measurements([measurement_data(r, "index_x")], model="relaxation2")
+for source, fit in fits.items():
     v = fit.values[0]
     commands, _, stretch = (np.asarray(a) for a in fit.drive_input[0])
     onset, duration = (commands + v["delay"])[2:], (stretch * v["ramp"])[2:]  # fitted motions
@@ -176,7 +176,7 @@ for source, r in (("motor's reads", with_reads), ("force", without_reads)):
         "onset error, largest (ms)": 1e3 * np.max(np.abs(onset - true_onset)),
         "duration error, largest (%)": 100 * np.max(np.abs(duration / true_duration - 1))}
 rows["true"] = {**{n: f"{true_whole[n]:.4g}" for n in law},
-                "accel": f"{with_reads.truth['session']['accel_s'] / np.median(true_duration):.3g}"}
+                "accel": f"{rec.truth['session']['accel_s'] / np.median(true_duration):.3g}"}
 display(pd.DataFrame(rows))
 pd.DataFrame(timing).round(2)
 
@@ -211,23 +211,25 @@ display(Image(filename=FIGURES / "corner.png"))
 # Fitted one motion at a time, the stiffness is not measured: the batch of motions ends on
 # the far end of the `k`-duration ridge (thousands of N/mm against a true ~38), flagged not
 # identifiable; only the kinetic friction and the motor delay are trustworthy there. Fitted
-# whole (`relaxation2`), the same recording gives `k` 142 +/- 32 N/mm (true 38), `f_kin`
-# 0.64 N (0.59), `f_static_excess` 0.23 N (0.28), `tau` 44 ms (50 ms) and `relax_frac`
-# 0.31 (0.14), at R^2 0.9994 over eight fitted strokes; the held force it derives,
-# 0.483 +/- 0.003 N, is determined far better than any of the parameters that make it up.
-# The kinetic level falls by `wear` 0.0048 +/- 0.0016 per mm of travel (the simulator
-# wears it by 1 % per motion, about 0.005 per mm).
+# whole (`relaxation2`), with each movement's onset and duration from the motor's reads,
+# the same recording gives `k` 43 +/- 25 N/mm (true 38), `f_kin` 0.587 N (0.586),
+# `f_static_excess` 0.274 N (0.276), `tau` 59 ms (50 ms) and `relax_frac` 0.17 (0.14), at
+# R^2 0.9994 over eight fitted strokes; the held force it derives, 0.481 +/- 0.003 N, is
+# determined far better than any of the parameters that make it up. The kinetic level
+# falls by `wear` 0.0040 +/- 0.0013 per mm of travel (the simulator wears it by 1 % per
+# motion, about 0.005 per mm). The slow branch sits at its bound (`relax_frac2` 0.95,
+# `tau2` 6 s, flagged): a slow decay through every hold, not the simulator's second branch
+# (0.15, 0.86 s).
 # This paper contact is stiff: it loads within a few milliseconds, during the motor's
-# acceleration, where `k` trades off with the acceleration share (fitted 0.31 against the
-# simulated rig's ~0.07, correlation 0.74 with `k`), and here the fit lands 3 standard
-# errors from the true `k` without a flag. Holding the rig at the day's values (the four
-# sample recordings with `rig="session"`: duration and acceleration share right within a
-# few per cent) does not cure it, it gives `k` 24 +/- 0.5 N/mm: for a contact this stiff
-# the fitted `k` is not the simulator's, whatever the rig. What does cure it is the motor's
-# own reads: with each movement's onset and duration taken from them (durations within
-# 0.7 % of the truth, where the force's timing made them up to 9 % long), the acceleration
-# share comes out 0.08 (0.07) and `k` 43 +/- 25 N/mm (38), `relax_frac` 0.17 (0.14); the
-# wide stderr is honest: the loading lasts a few samples. The softer materials of the
-# library come out within a few per cent
+# acceleration, where `k` trades off with the acceleration share (correlation 0.98); the
+# wide stderr of `k` is honest: the loading lasts a few samples. The reads give the
+# movements' durations within 0.7 % of the truth and the acceleration share 0.08 (the
+# simulated rig's 0.07). Without the reads, the durations found in the force are up to 9 %
+# long, the acceleration share comes out 0.31 and `k` 142 +/- 32 N/mm, 3 standard errors
+# from the true `k` without a flag (`relax_frac` 0.31, `f_kin` 0.64 off with it): a
+# recording without reads does not measure the stiffness of a contact this stiff. Holding
+# the rig at the day's values (the four sample recordings with `rig="session"`) does not
+# measure it either: `k` 27.5 +/- 0.6 N/mm with the reads, 23.8 +/- 0.5 without. The
+# softer materials of the library come out within a few per cent
 # (notebook 02). The per-motion posterior (last section) shows the same ridge as a wide,
 # skewed `k` distribution that emcee does not finish exploring in 2000 steps.

@@ -7,10 +7,13 @@ from pathlib import Path
 import typer
 
 #: The sample set shipped in ``data/``; ``frictionfit simulate`` remakes it with these.
+#: With the motor's position reads at 50 Hz, as ``frictionfit rub`` writes them.
 SAMPLE = {"seed": 2026, "sessions": 1, "measurements_per_class": 1,
-          "classes": ("paper-1", "paper-2", "cushion-1", "aluminium-foil-1")}
+          "classes": ("paper-1", "paper-2", "cushion-1", "aluminium-foil-1"),
+          "position_rate_hz": 50.0}
 SAMPLE_COMMAND = ("frictionfit simulate --out data --seed 2026 --sessions 1 "
-                  "--measurements-per-class 1 --classes paper-1,paper-2,cushion-1,aluminium-foil-1")
+                  "--measurements-per-class 1 --motor-positions 50 "
+                  "--classes paper-1,paper-2,cushion-1,aluminium-foil-1")
 
 
 def _sample_recordings(data: Path, out: Path) -> list:
@@ -22,7 +25,8 @@ def _sample_recordings(data: Path, out: Path) -> list:
                    f"(same as `{SAMPLE_COMMAND}`)")
         data = out / "data"
         simulate_dataset(data, SAMPLE["seed"], SAMPLE["sessions"],
-                         SAMPLE["measurements_per_class"], SAMPLE["classes"])
+                         SAMPLE["measurements_per_class"], SAMPLE["classes"],
+                         position_rate_hz=SAMPLE["position_rate_hz"])
     return read_dataset(data)
 
 
