@@ -170,8 +170,8 @@ def suspect_samples(grid: np.ndarray, *, stuck_min: int = STUCK_MIN
 
 class CheckedGrid(NamedTuple):
     """A recording on its uniform grid (:func:`regrid`: ``t`` in s, ``samples`` NaN where
-    dropped) and the faults :func:`suspect_samples` finds there (``spike``, ``stuck``).
-    Read-only: shared by everything that reads the recording."""
+    dropped) and the faults :func:`suspect_samples` finds there (``spike``, ``stuck``:
+    read-only, shared by everything that reads the recording)."""
 
     t: np.ndarray
     samples: np.ndarray
@@ -179,19 +179,19 @@ class CheckedGrid(NamedTuple):
     stuck: np.ndarray
 
 
-_CHECKED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_FAULTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def checked_grid(rec: Recording) -> CheckedGrid:
-    """``rec``'s :class:`CheckedGrid`, computed once per recording (the segmentation and
-    every channel's fit look for the same faults)."""
-    if rec not in _CHECKED:
-        t, grid = regrid(rec)
-        found = CheckedGrid(t, grid, *suspect_samples(grid))
-        for a in found:
+    """``rec`` on its uniform grid with its faults; the faults are looked for once per
+    recording (the segmentation and every channel's fit ask for the same ones)."""
+    t, grid = regrid(rec)
+    if rec not in _FAULTS:
+        faults = suspect_samples(grid)
+        for a in faults:
             a.setflags(write=False)
-        _CHECKED[rec] = found
-    return _CHECKED[rec]
+        _FAULTS[rec] = faults
+    return CheckedGrid(t, grid, *_FAULTS[rec])
 
 
 def _combined(checked: CheckedGrid) -> tuple[np.ndarray, np.ndarray]:
@@ -469,7 +469,6 @@ def _masked_grid(rec: Recording, mask_faults: bool, filter_n: int | None):
     (``mask_faults``), then filtered (``filter_n``); and the faults found before: missing
     samples, spikes and stuck rows."""
     t, grid, spike, stuck = checked_grid(rec)
-    grid = grid.copy()
     missing = ~np.isfinite(grid)
     if mask_faults:
         grid[spike | stuck[:, None]] = np.nan

@@ -147,3 +147,35 @@ def test_noise_free_plateaus_are_not_called_stuck():
     noisy = np.random.default_rng(0).normal(0, 0.003, (400, 2))
     noisy[100:130] = noisy[99]
     assert suspect_samples(noisy)[1].sum() == 30
+
+
+def test_faults_are_looked_for_once_per_recording_and_shared_read_only():
+    from frictionfit.segmentation import checked_grid
+
+    rec = _measurement()
+    rec.samples[3000, 0] = 1e4  # a spike
+    first, again = checked_grid(rec), checked_grid(rec)
+    assert first.spike is again.spike and first.spike[3000, 0] and first.spike.sum() == 1
+    assert not first.spike.flags.writeable and not first.stuck.flags.writeable
+    assert first.samples is not again.samples  # each caller owns its grid
+    np.testing.assert_array_equal(first.samples, regrid(rec)[1])
+
+
+def test_change_point_choice_equals_the_full_least_squares_fit():
+    """Projecting the common columns out picks the design a full weighted least-squares
+    fit of each candidate picks (random designs, no near-ties)."""
+    from frictionfit.segmentation import _best
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        n, q, m, g = 60, 3, int(rng.integers(1, 4)), 40
+        common = rng.normal(size=(n, q))
+        varying = rng.normal(size=(g, n, m))
+        w = rng.uniform(0.0, 1.0, n) * (rng.random(n) > 0.1)
+        y = common @ rng.normal(size=q) + varying[7] @ rng.normal(size=m) + 0.1 * rng.normal(size=n)
+        rss = []
+        for k in range(g):
+            x = np.hstack([common, varying[k]]) * np.sqrt(w)[:, None]
+            coef = np.linalg.lstsq(x, y * np.sqrt(w), rcond=None)[0]
+            rss.append(np.sum((x @ coef - y * np.sqrt(w)) ** 2))
+        assert _best(y, w, common, varying) == int(np.argmin(rss))
