@@ -96,19 +96,17 @@ def contact_force(
     """Tangential force (N) for a drive displacement ``x`` (mm) sampled every ``dt`` s.
 
     ``dt``: one interval (s), or one per sample (``dt[i] = t[i] - t[i-1]``, ``dt[0]`` any
-    positive value) for a non-uniform grid: every update is exact for any interval.
-
-    Parameters (physical units): ``k`` N/mm, ``f_kin`` N, ``f_static_excess`` N
-    (static minus kinetic level), ``slip_length`` mm, ``relax_frac`` and
-    ``relax_frac2`` (fractions of the instantaneous force that relax; their sum is
-    kept below 1), ``tau``/``tau2`` s, ``damping`` N s/mm, ``wear`` 1/mm (the kinetic
-    level is ``f_kin exp(wear (L/2 - l))`` after a travel ``l`` of the drive, ``L`` its
-    whole travel: friction falling as a textile wears, rising where negative; ``f_kin``
-    is the level halfway through). An effect whose parameter is ``None`` is left out of
-    the recurrence (not computed at all); ``0.0`` gives the same force. With the defaults
-    the law is the plain elastic-plastic slider. Starts at rest with ``z = 0``. Every
-    update is an exact per-sample recurrence, stable for any stiffness. ``unroll``: scan
-    unrolling (2 measured fastest on a 2-core CPU for batched Jacobians).
+    positive value) for a non-uniform grid. Parameters (physical units): ``k`` N/mm,
+    ``f_kin`` N, ``f_static_excess`` N (static minus kinetic level), ``slip_length`` mm,
+    ``relax_frac`` and ``relax_frac2`` (fractions of the instantaneous force that relax;
+    their sum is kept below 1), ``tau``/``tau2`` s, ``damping`` N s/mm, ``wear`` 1/mm (the
+    kinetic level is ``f_kin exp(wear (L/2 - l))`` after a travel ``l`` of the drive, ``L``
+    its whole travel: friction falling as a textile wears, rising where negative; ``f_kin``
+    is the level halfway through). An effect whose parameter is ``None`` is left out of the
+    recurrence (not computed at all); ``0.0`` gives the same force. With the defaults the
+    law is the plain elastic-plastic slider. Starts at rest with ``z = 0``; every update is
+    exact for any interval and stable for any stiffness. ``unroll``: scan unrolling (2
+    measured fastest on a 2-core CPU for batched Jacobians).
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
