@@ -13,10 +13,12 @@ nothing else in frictionfit parses files.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import warnings
-from collections.abc import Iterator, Sequence
+import weakref
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,7 @@ __all__ = [
     "Event",
     "Problem",
     "Recording",
+    "kept_per_recording",
     "read_dataset",
     "read_recording",
     "validate",
@@ -543,3 +546,21 @@ def read_dataset(folder: PathType, *, on_error: OnError = "flag",
 
 class DatasetWarning(UserWarning):
     """A recording was left out of a dataset (the message names it and why)."""
+
+
+def kept_per_recording(fn: Callable) -> Callable:
+    """``fn(rec, *args)`` computed once per recording object and ``args`` (arrays by their
+    contents), kept while the recording lives: what several readers of one recording ask
+    for (its faults, motions, motor timing, content hash) is computed once."""
+    kept: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    @functools.wraps(fn)
+    def once(rec: Recording, *args):
+        key = tuple((a.dtype.str, a.shape, a.tobytes()) if isinstance(a, np.ndarray) else a
+                    for a in args)
+        own = kept.setdefault(rec, {})
+        if key not in own:
+            own[key] = fn(rec, *args)
+        return own[key]
+
+    return once

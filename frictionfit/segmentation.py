@@ -24,7 +24,6 @@ time is taken as ``lag_s`` before the detected start.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -32,7 +31,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
 from frictionfit.errors import RecordingError
-from frictionfit.recording import Channel, Recording
+from frictionfit.recording import Channel, Recording, kept_per_recording
 
 __all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
            "segment", "suspect_samples"]
@@ -179,19 +178,19 @@ class CheckedGrid(NamedTuple):
     stuck: np.ndarray
 
 
-_FAULTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def checked_grid(rec: Recording) -> CheckedGrid:
     """``rec`` on its uniform grid with its faults; the faults are looked for once per
     recording (the segmentation and every channel's fit ask for the same ones)."""
-    t, grid = regrid(rec)
-    if rec not in _FAULTS:
-        faults = suspect_samples(grid)
-        for a in faults:
-            a.setflags(write=False)
-        _FAULTS[rec] = faults
-    return CheckedGrid(t, grid, *_FAULTS[rec])
+    return CheckedGrid(*regrid(rec), *_faults(rec))
+
+
+@kept_per_recording
+def _faults(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`suspect_samples` on ``rec``'s grid, read-only."""
+    faults = suspect_samples(regrid(rec)[1])
+    for a in faults:
+        a.setflags(write=False)
+    return faults
 
 
 def _combined(checked: CheckedGrid) -> tuple[np.ndarray, np.ndarray]:

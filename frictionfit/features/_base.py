@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import os
 import warnings
-import weakref
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,13 +34,12 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from frictionfit.errors import DatasetError
-from frictionfit.recording import MOTOR_POSITIONS, Recording
+from frictionfit.recording import MOTOR_POSITIONS, Recording, kept_per_recording
 
 __all__ = ["FeatureWarning", "RecordingFeatures", "cache_dir", "content_key", "median_over_motions"]
 
 #: Bump when the meaning of cached rows changes for every feature set.
 CACHE_VERSION = 1
-_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def cache_dir() -> Path:
@@ -50,20 +48,17 @@ def cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "frictionfit"
 
 
+@kept_per_recording
 def content_key(rec: Recording) -> str:
     """A hash of everything a feature may read from ``rec`` (not its name or path)."""
-    key = _KEYS.get(rec)
-    if key is None:
-        parts = [rec.t, rec.samples, rec.sample_rate_hz,
-                 [(c.name, c.unit) for c in rec.channels],
-                 [(e.t, e.kind, e.target) for e in rec.events],
-                 sorted((str(k), repr(v)) for k, v in rec.metadata.items())]
-        reads = rec.extra.get(MOTOR_POSITIONS)  # the fitted sets time movements from them
-        if reads is not None:  # (a recording without reads keeps its key)
-            parts.append(reads)
-        key = joblib.hash(tuple(parts))
-        _KEYS[rec] = key
-    return key
+    parts = [rec.t, rec.samples, rec.sample_rate_hz,
+             [(c.name, c.unit) for c in rec.channels],
+             [(e.t, e.kind, e.target) for e in rec.events],
+             sorted((str(k), repr(v)) for k, v in rec.metadata.items())]
+    reads = rec.extra.get(MOTOR_POSITIONS)  # the fitted sets time movements from them
+    if reads is not None:  # (a recording without reads keeps its key)
+        parts.append(reads)
+    return joblib.hash(tuple(parts))
 
 
 def median_over_motions(rows: list[np.ndarray]) -> np.ndarray:

@@ -2,21 +2,24 @@
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Sequence
 
 import numpy as np
 
 from frictionfit.errors import RecordingError
-from frictionfit.recording import Recording
+from frictionfit.recording import Recording, kept_per_recording
 from frictionfit.segmentation import Motion, segment
 
 #: The four in-plane force channels of the rubbing rig (OptoForce sensors), N.
 RUBBING_CHANNELS = ("thumb_x", "thumb_y", "index_x", "index_y")
 PHASES = ("out", "back")
-#: Each recording's motions by ``filter_n``: the feature sets of one pipeline (measured and
-#: fitted) ask for the same recordings' motions.
-_SEGMENTED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+@kept_per_recording
+def _segmented(rec: Recording, filter_n: int | None) -> list[Motion]:
+    """``segment(rec, filter_n=filter_n)``, once per recording: the feature sets of one
+    pipeline (measured and fitted) ask for the same recordings' motions."""
+    return segment(rec, filter_n=filter_n)
 
 
 def motions(rec: Recording, channels: Sequence[str], filter_n: int | None = None) -> list[Motion]:
@@ -25,10 +28,7 @@ def motions(rec: Recording, channels: Sequence[str], filter_n: int | None = None
     if missing:
         raise RecordingError(f"no channel {missing[0]!r}; channels are {list(rec.channel_names)}",
                              path=rec.name, channel=missing[0])
-    per_recording = _SEGMENTED.setdefault(rec, {})
-    if filter_n not in per_recording:
-        per_recording[filter_n] = segment(rec, filter_n=filter_n)
-    found = list(per_recording[filter_n])
+    found = list(_segmented(rec, filter_n))
     if not found:
         raise RecordingError("no complete motion after the preparatory one", path=rec.name)
     return found

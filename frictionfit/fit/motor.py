@@ -12,7 +12,6 @@ finding it in the force.
 from __future__ import annotations
 
 import warnings
-import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -24,7 +23,7 @@ import optimistix as optx
 from frictionfit.errors import RecordingError
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models.measurement import trapezoid
-from frictionfit.recording import Recording
+from frictionfit.recording import Recording, kept_per_recording
 
 __all__ = ["MotorTiming", "motor_timing"]
 
@@ -33,8 +32,6 @@ MIN_READS = 2
 #: The reads are padded (weight 0) to a multiple of this: one compiled shape per 20 s of
 #: reads at 50 Hz.
 READS_CHUNK = 1024
-#: Each recording's timings, by its commands (a recording's channels share them).
-_TIMINGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: Largest RMS misfit of the reads, as a share of the movement's step: beyond it the reads
 #: do not show trapezoid-like movements (a stalled or slipping drive) and are not used.
 MAX_MISFIT = 0.05
@@ -94,6 +91,7 @@ def _crossing(t: np.ndarray, x: np.ndarray, level: float) -> float:
     return float(np.interp(level, xs[order], ts[order]))
 
 
+@kept_per_recording
 def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> MotorTiming | None:
     """The motor's movements after the ``move`` ``commands`` (s; ``signs`` +1 out, -1 back)
     from ``rec``'s position reads; None when ``rec`` holds none, too few to fit, or reads
@@ -102,16 +100,6 @@ def motor_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray) -> Mot
     usable). A movement is timed only where at least :data:`MIN_READS` reads fall inside it
     and it lies between its command and the next one. Kept per recording: each of its
     channels asks for the same timing."""
-    per_recording = _TIMINGS.setdefault(rec, {})
-    key = (np.asarray(commands).tobytes(), np.asarray(signs).tobytes())
-    if key not in per_recording:
-        per_recording[key] = _fitted_timing(rec, commands, signs)
-    return per_recording[key]
-
-
-def _fitted_timing(rec: Recording, commands: np.ndarray, signs: np.ndarray
-                   ) -> MotorTiming | None:
-    """:func:`motor_timing`, computed."""
     try:
         reads = rec.motor_positions()
     except RecordingError as exc:
