@@ -428,7 +428,7 @@ def segment(
     Examples
     --------
     >>> from frictionfit.simulation.measurements import simulate_measurements
-    >>> rec, = simulate_measurements([(1, "paper-1", 1)], seed=0, pad_to=5)
+    >>> rec, = simulate_measurements([(1, "paper-1", 1)], seed=0, pad_to=1)
     >>> [m.index for m in segment(rec)]
     [1, 2, 3, 4]
     """

@@ -180,7 +180,7 @@ def test_a_damaged_recording_is_called_with_less_confidence_than_its_intact_twin
 
     labels = list(CLASSES)[:8]
     specs = [(s, lab, k) for s in (1, 2, 3) for lab in labels for k in (1, 2, 3, 4)]
-    recs = simulate_measurements(specs, seed=2, pad_to=5 * len(specs))
+    recs = simulate_measurements(specs, seed=2, pad_to=len(specs))
     train = [r for r in recs if r.metadata["session"] != 3]
     test = [r for r in recs if r.metadata["session"] == 3]
     y = np.array([r.metadata["label"] for r in train])

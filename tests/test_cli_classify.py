@@ -24,7 +24,7 @@ def folders(tmp_path_factory):
     """Sessions 1-2 (3 classes x 4 trials) for training, session 3 (1 trial each) held back."""
     specs = [(s, lab, k) for s in (1, 2) for lab in LABELS for k in (1, 2, 3, 4)]
     held = [(3, lab, 1) for lab in LABELS]
-    recs = simulate_measurements(specs + held, seed=5, pad_to=5 * len(specs + held))
+    recs = simulate_measurements(specs + held, seed=5, pad_to=len(specs + held))
     train, test = tmp_path_factory.mktemp("train"), tmp_path_factory.mktemp("test")
     for rec in recs:
         write_recording(rec, (test if rec.metadata["session"] == 3 else train) / rec.name)

@@ -92,6 +92,18 @@ def test_absent_effect_equals_switched_off_effect():
     np.testing.assert_allclose(lean, full, rtol=0, atol=1e-14)
 
 
+def test_a_drive_simulated_in_pieces_from_the_state_left_is_one_history():
+    x = 1.0 * (0.5 - 0.5 * jnp.cos(jnp.pi * jnp.clip(T / 0.12, 0, 1)))
+    x = jnp.concatenate([x, x[::-1], x])
+    law = (8.0, 0.6, 0.4, 0.05, 0.3, 0.15, 0.2, 2.0, 1e-3)
+    whole = contact_force(x, 1e-3, *law)
+    pieces, state = [], None
+    for a, b in ((0, 37), (37, 400), (400, x.size)):
+        f, state = contact_force(x[a:b], 1e-3, *law, state=state, return_state=True)
+        pieces.append(f)
+    np.testing.assert_allclose(jnp.concatenate(pieces), whole, rtol=1e-13, atol=1e-15)
+
+
 def test_worn_kinetic_level_is_f_kin_halfway_through_the_travel():
     # Four 1-mm strokes out and back: the plateau of each stroke falls by exp(-wear) per mm
     # travelled, and equals f_kin at half the total travel (2 mm).

@@ -68,7 +68,7 @@ SPECS = [(2, "bath-mat-1", 2), (2, "curtain-rose-1", 1), (1, "cushion-1", 1),
 def simulated():
     from frictionfit.simulation.measurements import simulate_measurements
 
-    return simulate_measurements(SPECS, seed=1, pad_to=5 * len(SPECS))
+    return simulate_measurements(SPECS, seed=1, pad_to=len(SPECS))
 
 
 def _errors_ms(rec, motions):

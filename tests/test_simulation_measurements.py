@@ -15,7 +15,7 @@ from frictionfit.simulation.measurements import (
 )
 
 #: One compiled batch shape for the whole file (padding does not change the data).
-PAD = 5 * 8
+PAD = 8
 SPECS = [(1, "paper-1", 1), (1, "paper-2", 1), (2, "cushion-1", 1), (2, "pe-bag-2", 2),
          (1, "floor-mat-1", 3), (2, "curtain-rose-2", 1), (1, "banknote-1", 2),
          (2, "aluminium-foil-2", 4)]
@@ -50,6 +50,20 @@ def test_layout_matches_the_lab(recs):
     assert np.corrcoef(x[:, 0], x[:, 2])[0, 1] < -0.9
     # forces are whole millinewtons (ADC quantisation, 3 decimals in the CSV)
     assert np.allclose(clean.samples * 1000, np.round(clean.samples * 1000), atol=1e-6)
+
+
+def test_force_carries_on_through_the_holds_between_motions(recs):
+    # one continuous history: no step where one motion's window meets the next (in the
+    # holds at 2, 4, 6, 8 s), only the noise's change (sd 1.5-4 mN, AR(1))
+    steps = []
+    for rec in recs:
+        y, t = rec.samples[:, CHANNELS.index("index_x")], rec.t
+        for join in (2.0, 4.0, 6.0, 8.0):
+            before = y[(t >= join - 0.02) & (t < join)]
+            after = y[(t >= join) & (t < join + 0.02)]
+            if np.isfinite(before).all() and np.isfinite(after).all():
+                steps.append(abs(after.mean() - before.mean()))
+    assert len(steps) > 20 and np.median(steps) < 0.003 and max(steps) < 0.01
 
 
 def test_truth_per_motion_and_channel(recs):

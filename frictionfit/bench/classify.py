@@ -69,7 +69,7 @@ def _rubbing(quick: bool, seed: int) -> tuple[list[dict], dict]:
     sessions, trials = (2, 2) if quick else (3, 4)
     specs = [(s, c, k) for s in range(1, sessions + 1) for c in classes
              for k in range(1, trials + 1)]
-    recs = simulate_measurements(specs, seed=seed, pad_to=5 * len(specs))
+    recs = simulate_measurements(specs, seed=seed, pad_to=len(specs))
     sets = {"handcrafted": {}, "fftbins": {}, "physical": {"fitted": not quick}}
     if not quick:
         sets["raw"] = {}

@@ -92,6 +92,8 @@ def contact_force(
     damping=None,
     wear=None,
     unroll: int = 2,
+    state=None,
+    return_state: bool = False,
 ):
     """Tangential force (N) for a drive displacement ``x`` (mm) sampled every ``dt`` s.
 
@@ -104,9 +106,12 @@ def contact_force(
     its whole travel: friction falling as a textile wears, rising where negative; ``f_kin``
     is the level halfway through). An effect whose parameter is ``None`` is left out of the
     recurrence (not computed at all); ``0.0`` gives the same force. With the defaults the
-    law is the plain elastic-plastic slider. Starts at rest with ``z = 0``; every update is
-    exact for any interval and stable for any stiffness. ``unroll``: scan unrolling (2
-    measured fastest on a 2-core CPU for batched Jacobians).
+    law is the plain elastic-plastic slider. Starts at rest with ``z = 0``, or from
+    ``state``: the one a previous call left (``return_state=True``: ``(force, state)``, so
+    a drive simulated piece by piece, parameters changing between pieces, is one
+    continuous history); every update is exact for any interval and stable for any
+    stiffness. ``unroll``: scan unrolling (2 measured fastest on a 2-core CPU for batched
+    Jacobians).
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
@@ -156,5 +161,5 @@ def contact_force(
     zero = jnp.zeros((), dtype=x.dtype)
     init = (zero, zero, (zero,) * len(fracs), x[0], jnp.ones((), dtype=x.dtype), zero)
     xs = (x, 1.0 / dt, coefs) if per_step else x
-    _, force = jax.lax.scan(step, init, xs, unroll=unroll)
-    return force
+    last, force = jax.lax.scan(step, init if state is None else state, xs, unroll=unroll)
+    return (force, last) if return_state else force

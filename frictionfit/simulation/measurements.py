@@ -5,12 +5,14 @@ at 0.05 + 2k s, ``move p1`` at 1.05 + 2k s), 10.05 s at 1 kHz, channels ``thumb_
 ``thumb_y``, ``index_x``, ``index_y`` in N, written as ``s{session}_{label}_{trial:02d}``.
 
 The tangential force is the contact law of :mod:`frictionfit.models` (``rich``: static
-peak, slip weakening, two Maxwell branches, damping), each motion with its own material
-parameters. A motion is simulated from rest one second before its out command, with the
-previous back stroke (or the fingers closing) as its history, and the motions are joined
-in the holds at t = 2, 4, 6, 8 s: the state a motion starts from carries the previous back
-stroke but not the strokes before it, and the force steps at the joins (by 5-70 mN on the
-measured classes; docs/decisions.md). Effects the fitted family does not model:
+peak, slip weakening, two Maxwell branches, damping), driven continuously from one second
+before the first command (the fingers closing) to the end, so every motion starts from
+the state the previous ones left. Each motion has its own material parameters, taking over
+:data:`SWITCH_S` after its out command, halfway through the stroke, as the finger slides
+onto a new patch of the textile; the contact's elastic and relaxing forces carry over
+(its displacements rescaled by the change of stiffness), so only the friction limit
+changes there, by the motion-to-motion change of the material (a few per cent).
+Effects the fitted family does not model:
 
 - motor: trapezoid velocity profile (acceleration phases of 8-15 ms) with a latency,
   stroke and duration that drift per session and jitter per movement;
@@ -66,8 +68,11 @@ N_SAMPLES = 10050
 CHANNELS = ("thumb_x", "thumb_y", "index_x", "index_y")
 FAULT_KINDS = ("drop", "nan", "stuck", "spike")
 FAULT_RATE = 1.0 / 6.0
-_PREFIX = 1000  # samples of history simulated before each motion (the previous back stroke)
-_OWN = 2050  # samples of each motion window (motion 4 runs to 10.05 s)
+#: The simulated history starts this long before t = 0 (s): the fingers closing.
+HISTORY_S = 1.0
+#: A motion's material parameters take over this long after its out command (s): the
+#: finger is sliding then for every drawn latency and duration.
+SWITCH_S = 0.08
 _LAW = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
         "relax_frac2", "tau2", "damping")
 _FORCE_SCALED = ("k", "f_kin", "f_static_excess", "damping", "drag")
@@ -156,20 +161,27 @@ def _draw_fault(rng: np.random.Generator, motion: int) -> dict:
     return {"motion": motion, "kind": kind, "start": start, "n": n, "channels": channels}
 
 
-def _drive(plan: dict, i: int) -> tuple[np.ndarray, np.ndarray]:
-    """Finger position (mm) and velocity (mm/s) of motion ``i``'s window, history included."""
+def _drive(plan: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Finger position (mm) and velocity (mm/s) from ``-HISTORY_S`` to the end, 1 kHz."""
     s = plan["session"]
-    t = PERIOD_S * i + (np.arange(_PREFIX + _OWN) - _PREFIX) / RATE_HZ
+    t = np.arange(_N_HISTORY + N_SAMPLES) / RATE_HZ - HISTORY_S
     stroke, accel = s["stroke_mm"], s["accel_s"]
-    if i == 0:  # closing the fingers leaves an uncontrolled internal force
-        prev_start, prev_dur, amp = T_OUT - 0.95, s["duration_s"], plan["preload"] * stroke
-    else:
-        (prev_start, prev_dur), amp = plan["motions"][i - 1]["moves"][1], stroke
-    x0, v0 = motor_profile(t, prev_start, prev_dur, accel)
-    (out_s, out_d), (back_s, back_d) = plan["motions"][i]["moves"]
-    x1, v1 = motor_profile(t, out_s, out_d, accel)
-    x2, v2 = motor_profile(t, back_s, back_d, accel)
-    return amp * (1 - x0) + stroke * (x1 - x2), -amp * v0 + stroke * (v1 - v2)
+    # closing the fingers leaves an uncontrolled internal force
+    x0, v0 = motor_profile(t, T_OUT - 0.95, s["duration_s"], accel)
+    amp = plan["preload"] * stroke
+    x, v = amp * (1 - x0), -amp * v0
+    for m in plan["motions"]:
+        (out_s, out_d), (back_s, back_d) = m["moves"]
+        x1, v1 = motor_profile(t, out_s, out_d, accel)
+        x2, v2 = motor_profile(t, back_s, back_d, accel)
+        x, v = x + stroke * (x1 - x2), v + stroke * (v1 - v2)
+    return x, v
+
+
+_N_HISTORY = round(HISTORY_S * RATE_HZ)
+#: Sample (from ``-HISTORY_S``) where each motion's parameters take over, and the end.
+_EDGES = (0, *(round((PERIOD_S * i + T_OUT + SWITCH_S + HISTORY_S) * RATE_HZ)
+               for i in range(1, N_MOTIONS)), _N_HISTORY + N_SAMPLES)
 
 
 @lru_cache(maxsize=1)
@@ -178,19 +190,35 @@ def _batched_law():
 
     from frictionfit.models import contact_force
 
-    return jax.jit(jax.vmap(lambda xi, *p: contact_force(xi, 1.0 / RATE_HZ, *p)))
+    def piece(x, state, *params):
+        return contact_force(x, 1.0 / RATE_HZ, *params, state=state, return_state=True)
+
+    return jax.jit(jax.vmap(piece))
 
 
-def _forces(x: np.ndarray, params: dict[str, np.ndarray], pad_to: int) -> np.ndarray:
-    """Contact force (N) of every window in one jitted, vmapped call: ``x`` is (B, n) in mm.
+def _forces(x: np.ndarray, params: list[dict[str, np.ndarray]], pad_to: int) -> np.ndarray:
+    """Contact force (N) of every measurement, ``x`` (B, n) in mm from ``-HISTORY_S``;
+    ``params[i]``: motion ``i``'s law parameters, one per measurement. The law runs piece by
+    piece (one jitted, vmapped call per motion), each from the state the last left, its
+    displacements rescaled so that the forces carry over.
 
     The batch is padded (repeating its last row) to a multiple of ``pad_to`` so that
     batches of different sizes share one compilation.
     """
     n = x.shape[0]
     idx = np.minimum(np.arange(-(-n // pad_to) * pad_to), n - 1)
-    out = _batched_law()(x[idx], *(params[name][idx] for name in _LAW))
-    return np.asarray(out)[:n]
+    zero = np.zeros(idx.size)
+    state = (zero, zero, (zero, zero), x[idx, 0], np.ones(idx.size), zero)  # at rest
+    pieces = []
+    for i, (a, b) in enumerate(zip(_EDGES[:-1], _EDGES[1:], strict=True)):
+        if i:  # the same elastic and relaxing forces under the new stiffness
+            r = params[i - 1]["k"][idx] / params[i]["k"][idx]
+            z, slip, ws, *rest = state
+            state = (z * r, slip, tuple(w * r for w in ws), *rest)
+        force, state = _batched_law()(x[idx, a:b], state,
+                                      *(params[i][name][idx] for name in _LAW))
+        pieces.append(np.asarray(force)[:n])
+    return np.concatenate(pieces, axis=1)
 
 
 def _channel_gains(s: dict) -> np.ndarray:
@@ -298,7 +326,7 @@ def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
 
 
 def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, *,
-                          pad_to: int = 5 * 35, position_rate_hz: float = 0.0
+                          pad_to: int = 35, position_rate_hz: float = 0.0
                           ) -> list[Recording]:
     """Simulate measurements given as ``(session, label, trial)``; forces in one batch.
 
@@ -310,7 +338,7 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
     seed : int
         Master seed; each measurement depends only on it and its own spec.
     pad_to : int
-        Motions per compiled batch shape (padding; does not change the result).
+        Measurements per compiled batch shape (padding; does not change the result).
     position_rate_hz : float
         Also read the motor's position this often (Hz; 0: not at all, as in the lab's
         recordings), as ``frictionfit rub`` does; the reads do not change the forces.
@@ -333,20 +361,18 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
         if session not in sessions:
             sessions[session] = _session(seed, session)
         plans.append(_plan(seed, sessions[session], label, trial))
-    drives = [_drive(p, i) for p in plans for i in range(N_MOTIONS)]
-    x = np.stack([d[0] for d in drives])
-    v = np.stack([d[1] for d in drives])
-    params = {n: np.array([m["params"][n] for p in plans for m in p["motions"]]) for n in _LAW}
-    drag = np.array([m["params"]["drag"] for p in plans for m in p["motions"]])
-    force = (_forces(x, params, pad_to) + drag[:, None] * v)[:, _PREFIX:]
-    x = x[:, _PREFIX:]
+    x, v = (np.stack(a) for a in zip(*(_drive(p) for p in plans), strict=True))
+    params = [{n: np.array([p["motions"][i]["params"][n] for p in plans]) for n in (*_LAW, "drag")}
+              for i in range(N_MOTIONS)]
+    drag = np.concatenate([np.repeat(params[i]["drag"][:, None], b - a, axis=1)
+                           for i, (a, b) in enumerate(zip(_EDGES[:-1], _EDGES[1:], strict=True))],
+                          axis=1)
+    force = (_forces(x, params, pad_to) + drag * v)[:, _N_HISTORY:]
+    x = x[:, _N_HISTORY:]
     recs = []
     for k, plan in enumerate(plans):
-        rows = slice(k * N_MOTIONS, (k + 1) * N_MOTIONS)
-        f = np.concatenate([w[: int(PERIOD_S * RATE_HZ)] for w in force[rows][:-1]]
-                           + [force[rows][-1]])
-        pos = np.concatenate([w[: int(PERIOD_S * RATE_HZ)] for w in x[rows][:-1]] + [x[rows][-1]])
-        clean = _channels(plan, f[:N_SAMPLES], pos[:N_SAMPLES])
+        f, pos = force[k], x[k]
+        clean = _channels(plan, f, pos)
         measured, level = _sensor(plan, clean)
         t, y = _apply_faults(plan, np.arange(N_SAMPLES) / RATE_HZ, measured)
         material = material_for(plan["label"])
@@ -413,7 +439,7 @@ def simulate_dataset(
     paths = []
     for start in range(0, len(specs), batch):
         chunk = specs[start:start + batch]
-        for rec in simulate_measurements(chunk, seed, pad_to=N_MOTIONS * batch,
+        for rec in simulate_measurements(chunk, seed, pad_to=batch,
                                          position_rate_hz=position_rate_hz):
             paths.append(write_recording(rec, Path(out) / rec.name, decimals=3))
         if progress is not None:
