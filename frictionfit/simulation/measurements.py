@@ -182,6 +182,8 @@ _N_HISTORY = round(HISTORY_S * RATE_HZ)
 #: Sample (from ``-HISTORY_S``) where each motion's parameters take over, and the end.
 _EDGES = (0, *(round((PERIOD_S * i + T_OUT + SWITCH_S + HISTORY_S) * RATE_HZ)
                for i in range(1, N_MOTIONS)), _N_HISTORY + N_SAMPLES)
+#: The motion whose material each sample (from ``-HISTORY_S``) has.
+_MOTION_OF = np.repeat(np.arange(N_MOTIONS), np.diff(_EDGES))
 
 
 @lru_cache(maxsize=1)
@@ -364,15 +366,12 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
     x, v = (np.stack(a) for a in zip(*(_drive(p) for p in plans), strict=True))
     params = [{n: np.array([p["motions"][i]["params"][n] for p in plans]) for n in (*_LAW, "drag")}
               for i in range(N_MOTIONS)]
-    drag = np.concatenate([np.repeat(params[i]["drag"][:, None], b - a, axis=1)
-                           for i, (a, b) in enumerate(zip(_EDGES[:-1], _EDGES[1:], strict=True))],
-                          axis=1)
+    drag = np.stack([p["drag"] for p in params])[_MOTION_OF].T  # (B, n): each piece's
     force = (_forces(x, params, pad_to) + drag * v)[:, _N_HISTORY:]
     x = x[:, _N_HISTORY:]
     recs = []
     for k, plan in enumerate(plans):
-        f, pos = force[k], x[k]
-        clean = _channels(plan, f, pos)
+        clean = _channels(plan, force[k], x[k])
         measured, level = _sensor(plan, clean)
         t, y = _apply_faults(plan, np.arange(N_SAMPLES) / RATE_HZ, measured)
         material = material_for(plan["label"])
