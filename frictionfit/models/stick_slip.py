@@ -109,7 +109,8 @@ def contact_force(
     law is the plain elastic-plastic slider. Starts at rest with ``z = 0``, or from
     ``state``: the one a previous call left (``return_state=True``: ``(force, state)``, so
     a drive simulated piece by piece, parameters changing between pieces, is one
-    continuous history); every update is exact for any interval and stable for any
+    continuous history; ``state`` is ``(z, slip, (w per Maxwell branch), last x, last
+    direction, travel)``, displacements in mm); every update is exact for any interval and stable for any
     stiffness. ``unroll``: scan unrolling (2 measured fastest on a 2-core CPU for batched
     Jacobians).
     """

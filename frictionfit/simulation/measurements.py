@@ -209,11 +209,10 @@ def _forces(x: np.ndarray, params: list[dict[str, np.ndarray]], pad_to: int) -> 
     """
     n = x.shape[0]
     idx = np.minimum(np.arange(-(-n // pad_to) * pad_to), n - 1)
-    zero = np.zeros(idx.size)
-    state = (zero, zero, (zero, zero), x[idx, 0], np.ones(idx.size), zero)  # at rest
+    state = None  # at rest
     pieces = []
     for i, (a, b) in enumerate(zip(_EDGES[:-1], _EDGES[1:], strict=True)):
-        if i:  # the same elastic and relaxing forces under the new stiffness
+        if state is not None:  # the same elastic and relaxing forces under the new stiffness
             r = params[i - 1]["k"][idx] / params[i]["k"][idx]
             z, slip, ws, *rest = state
             state = (z * r, slip, tuple(w * r for w in ws), *rest)
