@@ -110,9 +110,9 @@ def contact_force(
     ``state``: the one a previous call left (``return_state=True``: ``(force, state)``, so
     a drive simulated piece by piece, parameters changing between pieces, is one
     continuous history; ``state`` is ``(z, slip, (w per Maxwell branch), last x, last
-    direction, travel)``, displacements in mm); every update is exact for any interval and stable for any
-    stiffness. ``unroll``: scan unrolling (2 measured fastest on a 2-core CPU for batched
-    Jacobians).
+    direction, travel)``, displacements in mm); every update is exact for any interval
+    and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest on a
+    2-core CPU for batched Jacobians).
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
