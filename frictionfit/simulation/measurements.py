@@ -169,13 +169,20 @@ def _drive(plan: dict) -> tuple[np.ndarray, np.ndarray]:
     # closing the fingers leaves an uncontrolled internal force
     x0, v0 = motor_profile(t, T_OUT - 0.95, s["duration_s"], accel)
     amp = plan["preload"] * stroke
-    x, v = amp * (1 - x0), -amp * v0
+    progress, rate = _progress(plan, t)
+    return amp * (1 - x0) + stroke * progress, -amp * v0 + stroke * rate
+
+
+def _progress(plan: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The motor's progress from ``p1`` (0) to ``p2`` (1) over every motion, and its rate
+    (1/s), at times ``t`` (s)."""
+    accel = plan["session"]["accel_s"]
+    progress, rate = np.zeros(t.shape), np.zeros(t.shape)
     for m in plan["motions"]:
-        (out_s, out_d), (back_s, back_d) = m["moves"]
-        x1, v1 = motor_profile(t, out_s, out_d, accel)
-        x2, v2 = motor_profile(t, back_s, back_d, accel)
-        x, v = x + stroke * (x1 - x2), v + stroke * (v1 - v2)
-    return x, v
+        for sign, (start, duration) in zip((1.0, -1.0), m["moves"], strict=True):
+            x, v = motor_profile(t, start, duration, accel)
+            progress, rate = progress + sign * x, rate + sign * v
+    return progress, rate
 
 
 _N_HISTORY = round(HISTORY_S * RATE_HZ)
@@ -314,13 +321,7 @@ def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
     t_request = np.arange(n) / rate_hz + rng.uniform(0.0, 5e-4, n)
     t_read = t_request + rng.uniform(2e-4, 8e-4, n)
     t_reply = t_request + rng.uniform(1e-3, 2e-3, n)
-    accel = plan["session"]["accel_s"]
-    progress = np.zeros(n)  # 0 at p1, 1 at p2
-    for m in plan["motions"]:
-        (out_s, out_d), (back_s, back_d) = m["moves"]
-        progress += (motor_profile(t_read, out_s, out_d, accel)[0]
-                     - motor_profile(t_read, back_s, back_d, accel)[0])
-    counts = np.round(P1_COUNTS + (P2_COUNTS - P1_COUNTS) * progress)
+    counts = np.round(P1_COUNTS + (P2_COUNTS - P1_COUNTS) * _progress(plan, t_read)[0])
     return {"columns": [dict(c) for c in MOTOR_COLUMNS],
             "reads": np.column_stack([t_request.round(6), t_reply.round(6), counts]).tolist(),
             "rate_hz_requested": rate_hz, "reads_failed": 0, "counts_per_revolution": 4096}
