@@ -78,6 +78,16 @@ def drive(t, t_out, t_back, delay, ramp, stroke):
     return stroke * (out - back)
 
 
+def _branches(relax_frac, tau, relax_frac2, tau2) -> tuple[list, list]:
+    """Weights (of the instantaneous force) and times (s) of the Maxwell branches in use: the
+    second relaxes ``relax_frac2`` of what the first leaves."""
+    if relax_frac is None:
+        return [], []
+    if relax_frac2 is None:
+        return [relax_frac], [tau]
+    return [relax_frac, relax_frac2 * (1.0 - relax_frac)], [tau, tau2]
+
+
 def contact_force(
     x,
     dt,
@@ -105,24 +115,17 @@ def contact_force(
     kinetic level is ``f_kin exp(wear (L/2 - l))`` after a travel ``l`` of the drive, ``L``
     its whole travel: friction falling as a textile wears, rising where negative; ``f_kin``
     is the level halfway through). An effect whose parameter is ``None`` is left out of the
-    recurrence (not computed at all); ``0.0`` gives the same force. With the defaults the
-    law is the plain elastic-plastic slider. Starts at rest with ``z = 0``, or from
-    ``state``: the one a previous call left (``return_state=True``: ``(force, state)``, so
-    a drive simulated piece by piece, parameters changing between pieces, is one
-    continuous history; ``state`` is ``(z, slip, (w per Maxwell branch), last x, last
-    direction, travel)``, displacements in mm); every update is exact for any interval
-    and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest on a
-    2-core CPU for batched Jacobians).
+    recurrence (not computed at all); ``0.0`` gives the same force. Starts at rest with
+    ``z = 0``, or from ``state``: the one a previous call left (``return_state=True``:
+    ``(force, state)``, so a drive simulated piece by piece, parameters changing between
+    pieces, is one continuous history; ``state`` is ``(z, slip, (w per Maxwell branch),
+    last x, last direction, travel)``, displacements in mm); every update is exact for any
+    interval and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest
+    on a 2-core CPU for batched Jacobians).
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
-    fracs, taus = [], []
-    if relax_frac is not None:
-        fracs.append(relax_frac)
-        taus.append(tau)
-        if relax_frac2 is not None:
-            fracs.append(relax_frac2 * (1.0 - relax_frac))
-            taus.append(tau2)
+    fracs, taus = _branches(relax_frac, tau, relax_frac2, tau2)
     per_step = jnp.ndim(dt) > 0  # a non-uniform grid: one interval per sample
     coefs = tuple(maxwell_coefficients(dt, tau_j) for tau_j in taus)
     inv_slip = 1.0 / slip_length
