@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -35,8 +37,8 @@ import pandas as pd
 from IPython.display import Image, display
 
 from frictionfit.bench import fit as bench_fit
-from frictionfit.bench._timing import machine_info, timed
 from frictionfit.bench.report import merge, write_report
+from frictionfit.bench.timing import machine_info, timed
 from frictionfit.errors import Status
 from frictionfit.fit import fit_trials
 from frictionfit.simulation.trials import simulate_trials
@@ -47,7 +49,7 @@ OUT = Path(tempfile.mkdtemp(prefix="frictionfit-nb05-"))
 # %% [markdown]
 # ## A tiny grid of settings
 # Each point: one configuration of `fit_trials` on the same 16 trials, timed after a
-# compile call (`frictionfit.bench._timing.timed`), error = median over trials and the
+# compile call (`frictionfit.bench.timing.timed`), error = median over trials and the
 # identifiable parameters of `|estimate - truth| / max(|truth|, 0.05)` (the benchmark's
 # definition), counting only converged fits.
 

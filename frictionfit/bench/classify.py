@@ -10,7 +10,7 @@ Two synthetic workloads (clearly not lab data):
   sessions); extraction time per measurement of each rubbing feature set (cache
   off) and the error of RBF SVM (one-vs-one) under leave-one-session-out.
 
-Times are medians of interleaved repetitions (:func:`frictionfit.bench._timing.alternate`).
+Times are medians of interleaved repetitions (:func:`frictionfit.bench.timing.alternate`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import tempfile
 from sklearn.pipeline import make_pipeline as sk_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from frictionfit.bench._timing import alternate, machine_info
+from frictionfit.bench.timing import alternate, machine_info
 from frictionfit.classify import (
     evaluate,
     labels_of,

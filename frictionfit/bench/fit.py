@@ -1,6 +1,6 @@
 """Benchmark of per-trial fitting: frictionfit's batched LM against the peers a user would pick.
 
-Peers, measured in the same run, interleaved (:func:`frictionfit.bench._timing.alternate`),
+Peers, measured in the same run, interleaved (:func:`frictionfit.bench.timing.alternate`),
 on the same model, data and starting points (the data-driven guess, unconstrained
 coordinates):
 
@@ -24,7 +24,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from frictionfit.bench._timing import alternate, machine_info, timed
+from frictionfit.bench.timing import alternate, machine_info, timed
 from frictionfit.errors import Status
 from frictionfit.fit import Trials, fit_trials, initial_guess
 from frictionfit.fit._problem import Problem, noise_scale

@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from frictionfit.bench._timing import alternate, timed
 from frictionfit.bench.fit import numpy_contact_force
+from frictionfit.bench.timing import alternate, timed
 from frictionfit.errors import Status
 from frictionfit.fit.measurement import MeasurementData, fit_measurements, measurement_data
 from frictionfit.models import MeasurementModel

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frictionfit.bench._timing import machine_info
+from frictionfit.bench.timing import machine_info
 
 __all__ = ["merge", "pareto_front", "to_markdown", "write_report"]
 

@@ -7,7 +7,7 @@
 - Memory: the process's peak resident set size so far (``resource.ru_maxrss``)
   after each size; sizes run in increasing order, so each row bounds that size.
 - Dask: the same batch in one process and on a local 2-worker cluster, timed
-  alternately (:func:`frictionfit.bench._timing.alternate`).
+  alternately (:func:`frictionfit.bench.timing.alternate`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from frictionfit.bench._timing import alternate, machine_info, timed
+from frictionfit.bench.timing import alternate, machine_info, timed
 from frictionfit.distributed import fit_distributed
 from frictionfit.fit import fit_trials
 from frictionfit.simulation.trials import simulate_trials

@@ -36,7 +36,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from frictionfit.bench._timing import alternate, machine_info, timed
+from frictionfit.bench.timing import alternate, machine_info, timed
 from frictionfit.fit import Trials, fit_trials
 from frictionfit.fit.result import concat_results, take_trials
 from frictionfit.models import PARAMS, get_model
