@@ -12,10 +12,8 @@ times long and tau changed by less than ``tau_rtol`` since the previous check, o
 at ``max_steps`` (then it is flagged ``converged=False``); its walkers leave the
 ensemble and the sampler goes on with the rest.
 
-Why one ensemble and not one sampler per trial: the former engine ran a sampler per
-trial in its own thread and gathered their calls into one batched evaluation. On 24
-``relaxation`` trials (2-s, 1 kHz, 20 dB) it spent 47 s of 107 s in the batched
-evaluation and the rest switching ~24 threads in and out of the GIL once per step.
+One ensemble rather than a sampler per trial: threads per trial spent most of their time
+switching in and out of the GIL (docs/decisions.md, "emcee: one ensemble, and its moves").
 
 Moves: an *adaptive independence sampler*, in the sampling coordinates of
 :mod:`~frictionfit.uncertainty._logpost` (log units).
@@ -32,21 +30,9 @@ Moves: an *adaptive independence sampler*, in the sampling coordinates of
    the proposal is refitted on every draw so far and the chain restarted (those
    steps count as pilot, ``ChainResult.n_pilot``).
 
-Why, measured on the default ``relaxation`` model (9 parameters; 2-s, 1 kHz, 20 dB
-trials, seed 0, fitted from the truth): the former mix (0.6 independence from the
-Laplace t + 0.3 DE + 0.1 DE-snooker, in ``u``; 36 walkers, 2000 steps) had max tau
-45-187 steps on 8 of 8 trials, always on ``k``, ``slip_length`` and ``ramp``. Their
-posterior is a long, thin ridge: correlations 0.99, ``k ~ ramp**(1.6..2.0)`` and
-``slip_length ~ ramp**-(1.7..2.0)`` (the trial's onset fixes ``k / ramp**2``), the
-ratio of its thinnest to its longest sd ~1/6000, flat-topped along the ridge with
-a cliff on one side. The logistic map of ``u`` bends that ridge, so DE and stretch
-moves crawl. Pure independence MH from the Laplace t in log coordinates:
-acceptance 0.31 / 0.43, max tau 10 / 4.5 on two trials; the adaptive sampler (before
-the ramp prior bounded the ridge): 4 of 8 trials converged (>= 50 tau) after 225-400
-kept steps (max tau 3.6-6.7, acceptance 0.49-0.58). With the ramp prior, on 200
-trials: median max tau 3.5 steps, acceptance 0.60. Walkers of one trial only share
-the proposal, never a move, so DE-type moves (which need the walkers of one trial
-to interact) have no place in the shared ensemble.
+Why an independence sampler and not DE or stretch moves: the posterior is a long, thin,
+curved ridge (``k / ramp**2`` fixed by a trial's onset) along which those moves crawl,
+and walkers of one trial share only the proposal, never a move (docs/decisions.md).
 """
 
 from __future__ import annotations
