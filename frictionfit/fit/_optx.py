@@ -181,10 +181,7 @@ def in_threads(solve_share: Callable, n: int, pool_size: int, threads: int):
     ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` before JAX starts); the tuple
     of per-problem arrays of the shares, concatenated. Each problem's result does not
     depend on its pool's other problems, so the split does not change results (tested).
-    Measured (with frictionfit's LM in the former twin loop) on a 2-core machine,
-    alternated, median of 3: quiet (load 1.9; 128 relaxation trials, pools of 32),
-    2 threads 1.3x faster than 1; shared (load ~8; 256 trials, pools of 128), 2 threads
-    11.4 s wall against 8.3 s."""
+    Two threads pay on a quiet 2-core machine, not on a loaded one (docs/decisions.md)."""
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
     if threads == 1:
         return solve_share(slice(0, n), None)

@@ -14,10 +14,9 @@ MINPACK), are solved with ``lineax.Cholesky``.
 Damping (Nielsen's rule): an accepted step scales ``lambda`` by
 ``max(1/3, 1 - (2 g - 1)^3)``, ``g`` the gain ratio of actual to predicted cost
 decrease, so a step that the linear model predicted well lowers the damping and a
-poor one keeps it; a rejected step multiplies it by :data:`REJECT_GROWTH`. (The
-former fixed factors 0.3 / 4 alternated accepted and rejected steps: 128
-simulated relaxation trials took 15.9 steps on average, 100 at most; now 12.8 /
-60, and stick_slip trials converge in 95 % of 128 instead of 89 %.)
+poor one keeps it; a rejected step multiplies it by :data:`REJECT_GROWTH`. (Fixed
+factors alternated accepted and rejected steps: fewer steps and more stick-slip trials
+converged with this rule; docs/decisions.md.)
 
 Convergence (MINPACK-like): a step (accepted or not) that changes the cost by less than
 ``ftol`` relatively while the damping is at most 1 (a near Gauss-Newton step, not a tiny
