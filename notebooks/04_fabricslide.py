@@ -4,9 +4,12 @@
 #     needs_shared: true
 #   jupytext:
 #     formats: ipynb,py:percent
+#     notebook_metadata_filter: frictionfit
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -159,7 +162,7 @@ repro.round(3)
 
 # %%
 rows = []
-for names in ("shortcut", "spectral", "physical", "physical,spectral"):
+for names in ("shortcut", "spectral", "sliding", "sliding,spectral"):
     for protocol in ("leave-one-repetition-out", "leave-one-pressure-out"):
         ev = evaluate(recs, names, "svm-ovo", protocol, seed=0)
         per_pressure = ev.breakdown.get("pressure")
@@ -174,9 +177,9 @@ warning.round(3)
 # The published pipeline reproduces: 0.86 (D=3) and 0.89 (D=7) on random half splits,
 # within a point of the reference. The warning is real: the texture-blind `shortcut`
 # scores 1.00 by repetition and still 0.97 when a whole pressure is left out (0.97 over
-# 120-210), as high as the physical sliding features (0.98 by repetition, 0.96 over
+# 120-210), as high as the physical sliding features (`sliding`: 0.98 by repetition, 0.96 over
 # 120-210, 0.90 with 250) and above spectra (0.87 over 120-210); at 250, outside the
-# training range, texture sets collapse (physical 0.56, spectral 0.46) while the shortcut
+# training range, texture sets collapse (sliding 0.57, spectral 0.46) while the shortcut
 # keeps 0.99, so no texture claim here beats the grasp. The contact model itself explains
-# little of a slide: the breakaway fits above reach R² 0.24 at best, and over all slides
+# little of a slide: the breakaway fits above reach R² 0.27 at best, and over all slides
 # only half converge (median R² 0.23).

@@ -73,6 +73,17 @@ def test_features_ignore_taxel_offsets_and_proximity():
     assert len(set(names)) == len(names) == 9 + 5 + 16 + 8 * 16
 
 
+def test_slides_take_the_sliding_set_by_name_and_physical_says_so():
+    from frictionfit.features import make_features
+    from frictionfit.features.physical import PhysicalFeatures
+
+    rec = slide(np.random.default_rng(3))
+    assert isinstance(make_features("sliding", cache=False), SlidingPhysicalFeatures)
+    with pytest.raises(ValueError, match="Canvas_F150_V-100mmps_0: a FabricSlide slide, not a "
+                                         "rubbing measurement; .* the 'sliding' set"):
+        PhysicalFeatures(cache=False).fit([rec])
+
+
 def test_contact_fit_recovers_a_simulated_slide():
     """Taxels = offsets + gains x the relaxation model's force for the known drive."""
     import jax.numpy as jnp

@@ -10,10 +10,11 @@ from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
-                 "law fitted to each recording), handcrafted, fftbins, spectral, raw, gesture, "
-                 "touch, shortcut; a comma list concatenates them. Default by dataset kind: "
-                 "recordings physical,fitted (the most accurate and best calibrated; a fit "
-                 "per recording, about 1 s each on 2 cores), fabricslide physical, gesture "
+                 "law fitted to each recording), sliding (a FabricSlide slide's breakaway and "
+                 "texture), handcrafted, fftbins, spectral, raw, gesture, touch, shortcut; a "
+                 "comma list concatenates them. Default by dataset kind: recordings "
+                 "physical,fitted (the most accurate and best calibrated; a fit per "
+                 "recording, about 1 s each on 2 cores), fabricslide sliding, gesture "
                  "gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
@@ -23,13 +24,13 @@ GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers
 #: The feature set of each dataset kind when ``--features`` is not given. Rubbing
 #: recordings: the measured quantities with the fitted law, the most accurate and best
 #: calibrated set (lab stand-in, leave-one-session-out: docs/results.md).
-DEFAULT_FEATURES = {"recordings": "physical,fitted", "fabricslide": "physical",
+DEFAULT_FEATURES = {"recordings": "physical,fitted", "fabricslide": "sliding",
                     "gesture": "gesture"}
 #: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
 ALL_DEFAULTS = {
     "recordings": (["physical,fitted", "physical", "handcrafted", "fftbins", "spectral", "raw"],
                    ["kfold", "leave-one-session-out"]),
-    "fabricslide": (["physical", "spectral", "physical,spectral", "shortcut"],
+    "fabricslide": (["sliding", "spectral", "sliding,spectral", "shortcut"],
                     ["leave-one-repetition-out", "leave-one-pressure-out"]),
     "gesture": (["gesture", "touch", "gesture,touch"],
                 ["person-dependent", "mixed-5fold", "leave-one-person-out"]),

@@ -16,6 +16,7 @@ __all__ = ["FEATURE_SETS", "make_features"]
 FEATURE_SETS = {
     "physical": "frictionfit.features.physical:PhysicalFeatures",
     "fitted": "frictionfit.features.physical:FittedFeatures",
+    "sliding": "frictionfit.features.sliding:SlidingPhysicalFeatures",
     "handcrafted": "frictionfit.features.handcrafted:HandcraftedFeatures",
     "fftbins": "frictionfit.features.fftbins:FFTBinFeatures",
     "spectral": "frictionfit.features.spectral:SpectralPCAFeatures",

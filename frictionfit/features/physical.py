@@ -39,8 +39,9 @@ masked in the fit and skipped by the measurements. A measurement's value is the
 median over its motions ignoring NaN; where every motion is NaN the base class
 fills the training median and warns (:class:`~frictionfit.features._base.FeatureWarning`).
 
-**Dispatch.** Recordings of the ``fabricslide`` kind (``metadata["dataset"]``)
-are handed to :class:`frictionfit.features.sliding.SlidingPhysicalFeatures`.
+FabricSlide slides are not rubbing measurements: their physical features are the
+``sliding`` set (:class:`frictionfit.features.sliding.SlidingPhysicalFeatures`); given
+here, they raise a ValueError that says so.
 """
 
 from __future__ import annotations
@@ -135,12 +136,12 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
     return out
 
 
-def _is_sliding(recordings: Sequence[Recording]) -> bool:
-    kinds = {r.metadata.get("dataset") == "fabricslide" for r in recordings}
-    if len(kinds) > 1:
-        raise ValueError("physical features: fabricslide recordings cannot be mixed with "
-                         "rubbing recordings in one call")
-    return kinds == {True}
+def _rubbing_only(recordings: Sequence[Recording]) -> None:
+    """ValueError naming the first FabricSlide slide among ``recordings``."""
+    for r in recordings:
+        if r.metadata.get("dataset") == "fabricslide":
+            raise ValueError(f"{r.name}: a FabricSlide slide, not a rubbing measurement; its "
+                             "physical features are the 'sliding' set")
 
 
 class PhysicalFeatures(RecordingFeatures):
@@ -275,40 +276,10 @@ class PhysicalFeatures(RecordingFeatures):
     def _measured_kept(self) -> tuple[tuple[str, str], ...]:
         return MEASURED if self.shape else MEASURED[:N_BASIC]
 
-    # --- sklearn contract with the fabricslide dispatch ----------------------
-    def _delegate(self, X):
-        from frictionfit.features.sliding import SlidingPhysicalFeatures
-
-        return SlidingPhysicalFeatures(cache=self.cache)
-
-    def fit(self, X: Sequence[Recording], y=None) -> PhysicalFeatures:
-        X = list(X)
-        self.delegate_ = self._delegate(X).fit(X, y) if _is_sliding(X) else None
-        return self if self.delegate_ is not None else super().fit(X, y)
-
-    def fit_transform(self, X: Sequence[Recording], y=None, **fit_params) -> np.ndarray:
-        X = list(X)
-        if _is_sliding(X):
-            self.fit(X, y)
-            return self.delegate_.transform(X)
-        self.delegate_ = None
-        return super().fit_transform(X, y)
-
-    def transform(self, X: Sequence[Recording]) -> np.ndarray:
-        if getattr(self, "delegate_", None) is not None:
-            return self.delegate_.transform(X)
-        return super().transform(X)
-
-    def transform_draws(self, X: Sequence[Recording], n_draws: int,
-                        rng: np.random.Generator) -> np.ndarray:
-        if getattr(self, "delegate_", None) is not None:
-            return self.delegate_.transform_draws(X, n_draws, rng)
-        return super().transform_draws(X, n_draws, rng)
-
-    def get_feature_names_out(self, input_features=None) -> np.ndarray:
-        if getattr(self, "delegate_", None) is not None:
-            return self.delegate_.get_feature_names_out(input_features)
-        return super().get_feature_names_out(input_features)
+    def _rows(self, recordings: Sequence[Recording]) -> np.ndarray:
+        recordings = list(recordings)
+        _rubbing_only(recordings)
+        return super()._rows(recordings)
 
     def _spread(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Each fitted feature drawn from its fit's posterior (Laplace: normal about the
