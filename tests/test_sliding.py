@@ -73,15 +73,16 @@ def test_features_ignore_taxel_offsets_and_proximity():
     assert len(set(names)) == len(names) == 9 + 5 + 16 + 8 * 16
 
 
-def test_slides_take_the_sliding_set_by_name_and_physical_says_so():
+@pytest.mark.parametrize("cache", [False, True])
+def test_slides_take_the_sliding_set_by_name_and_physical_says_so(cache, feature_cache):
     from frictionfit.features import make_features
     from frictionfit.features.physical import PhysicalFeatures
 
     rec = slide(np.random.default_rng(3))
-    assert isinstance(make_features("sliding", cache=False), SlidingPhysicalFeatures)
+    assert isinstance(make_features("sliding", cache=cache), SlidingPhysicalFeatures)
     with pytest.raises(ValueError, match="Canvas_F150_V-100mmps_0: a FabricSlide slide, not a "
                                          "rubbing measurement; .* the 'sliding' set"):
-        PhysicalFeatures(cache=False).fit([rec])
+        PhysicalFeatures(cache=cache).fit([rec])
 
 
 def test_contact_fit_recovers_a_simulated_slide():

@@ -276,11 +276,6 @@ class PhysicalFeatures(RecordingFeatures):
     def _measured_kept(self) -> tuple[tuple[str, str], ...]:
         return MEASURED if self.shape else MEASURED[:N_BASIC]
 
-    def _rows(self, recordings: Sequence[Recording]) -> np.ndarray:
-        recordings = list(recordings)
-        _rubbing_only(recordings)
-        return super()._rows(recordings)
-
     def _spread(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Each fitted feature drawn from its fit's posterior (Laplace: normal about the
         fitted value with its standard error, of the log10 where logged). A value whose
@@ -304,6 +299,7 @@ class PhysicalFeatures(RecordingFeatures):
 
     # --- extraction ----------------------------------------------------------
     def _motion_rows(self, recordings: Sequence[Recording]) -> list[np.ndarray | None]:
+        _rubbing_only(recordings)  # every extraction (rows, draws) comes through here
         found: list[list[Motion] | None] = []
         for rec in recordings:
             try:
