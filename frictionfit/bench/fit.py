@@ -29,6 +29,7 @@ from frictionfit.errors import Status
 from frictionfit.fit import Trials, fit_trials, initial_guess
 from frictionfit.fit._problem import Problem, noise_scale
 from frictionfit.models import FAMILY, ContactModel, get_model
+from frictionfit.models.stick_slip import maxwell_branches
 from frictionfit.simulation.trials import TrialSet, simulate_trials
 
 __all__ = ["IDENTIFIABLE", "measure", "numpy_contact_force", "numpy_predict", "run"]
@@ -61,13 +62,9 @@ def numpy_contact_force(x: np.ndarray, dt, v: dict) -> np.ndarray:
     """
     get = v.get
     dt = np.broadcast_to(dt, x.shape)
-    branches = []
-    if get("relax_frac") is not None:
-        branches.append([v["relax_frac"], v["tau"]])
-        if get("relax_frac2") is not None:
-            branches.append([v["relax_frac2"] * (1.0 - v["relax_frac"]), v["tau2"]])
     coef = []
-    for frac, tau in branches:
+    for frac, tau in zip(*maxwell_branches(get("relax_frac"), get("tau"), get("relax_frac2"),
+                                           get("tau2")), strict=True):
         h = dt / tau
         g = np.where(h < 1e-8, 1.0 - 0.5 * h, -np.expm1(-h) / np.maximum(h, 1e-300))
         coef.append((frac, np.exp(-h), g))

@@ -41,6 +41,7 @@ from frictionfit.fit.result import FitResult, concat_results, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import RIG, to_unconstrained
+from frictionfit.models.stick_slip import maxwell_branches
 from frictionfit.recording import Recording
 from frictionfit.segmentation import checked_grid, moving_average
 
@@ -686,7 +687,7 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray
         return u, np.zeros(u.shape[0], bool)
     v = model.physical(u)
     swap = v["tau"] > v["tau2"]
-    w1, w2 = v["relax_frac"], v["relax_frac2"] * (1.0 - v["relax_frac"])
+    (w1, w2), _ = maxwell_branches(v["relax_frac"], v["tau"], v["relax_frac2"], v["tau2"])
     new = {"tau": v["tau2"], "tau2": v["tau"], "relax_frac": w2,
            "relax_frac2": w1 / np.maximum(1.0 - w2, 1e-12)}
     u = u.copy()

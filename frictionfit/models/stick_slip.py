@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from frictionfit.models.relaxation import maxwell_coefficients
 
-__all__ = ["contact_force", "drive", "ramp_shape"]
+__all__ = ["contact_force", "drive", "maxwell_branches", "ramp_shape"]
 
 
 #: Taylor coefficients of ``sin(x) / x`` and ``cos(x)`` in powers of ``x**2``; on
@@ -78,7 +78,7 @@ def drive(t, t_out, t_back, delay, ramp, stroke):
     return stroke * (out - back)
 
 
-def _branches(relax_frac, tau, relax_frac2, tau2) -> tuple[list, list]:
+def maxwell_branches(relax_frac, tau, relax_frac2=None, tau2=None) -> tuple[list, list]:
     """Weights (of the instantaneous force) and times (s) of the Maxwell branches in use: the
     second relaxes ``relax_frac2`` of what the first leaves."""
     if relax_frac is None:
@@ -125,7 +125,7 @@ def contact_force(
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
-    fracs, taus = _branches(relax_frac, tau, relax_frac2, tau2)
+    fracs, taus = maxwell_branches(relax_frac, tau, relax_frac2, tau2)
     per_step = jnp.ndim(dt) > 0  # a non-uniform grid: one interval per sample
     coefs = tuple(maxwell_coefficients(dt, tau_j) for tau_j in taus)
     inv_slip = 1.0 / slip_length
