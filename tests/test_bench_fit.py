@@ -45,7 +45,11 @@ def test_quick_run_reports_every_summary_number():
     assert meas["median_rel_error_by_param"]["k"] < 0.2  # per-motion fits: ~50x off
     numpy_peer = meas["peers"]["scipy-numpy"]  # scipy's LM on the objective in plain NumPy
     assert numpy_peer["n_recordings"] == 2 and numpy_peer["s_per_recording"] > 0
-    assert abs(numpy_peer["cost_rel_diff"]) < 1e-4  # the same optimum (both stop at ftol 1e-6)
+    # Ours reaches at least the peers' optimum (the speed ratios compare like with like): on
+    # the continuous simulator scipy's LM, started on the full grid, stops 4-8 % higher in
+    # cost than the whole fit, whose first pass runs on merged blocks.
+    for peer in meas["peers"].values():
+        assert peer["cost_rel_diff"] < 1e-4
 
 
 @pytest.fixture(scope="module")
