@@ -99,10 +99,11 @@ print("chosen per motion:", result.model)
 rows = []
 for i, mo in enumerate(motions):
     true = rec.truth["motions"][mo.index]["channels"]["index_x"]
-    for name, value in result.values[i].items():
+    stderr = result.stderrs(i)
+    for name, value in result.params(i).items():  # the parameters of the motion's law
         if name in true:
             rows.append({"motion": mo.index, "param": name, "fitted": value,
-                         "stderr": result.stderr[i][name], "true": true[name],
+                         "stderr": stderr[name], "true": true[name],
                          "flag": result.flags[i].get(name, "")})
 pd.DataFrame(rows).round(4)
 
@@ -167,10 +168,10 @@ fits = {"motor's reads": whole,
         "force": fit_measurements([without_reads], model="relaxation2")}
 rows, timing = {}, {}
 for source, fit in fits.items():
-    v = fit.values[0]
+    v, se = fit.params(0), fit.stderrs(0)
     commands, _, stretch = (np.asarray(a) for a in fit.drive_input[0])
     onset, duration = (commands + v["delay"])[2:], (stretch * v["ramp"])[2:]  # fitted motions
-    rows[f"from the {source}"] = {n: f"{v[n]:.4g} +/- {fit.stderr[0][n]:.2g}"
+    rows[f"from the {source}"] = {n: f"{v[n]:.4g} +/- {se[n]:.2g}"
                                   for n in (*law, "accel")}
     timing[f"from the {source}"] = {
         "onset error, largest (ms)": 1e3 * np.max(np.abs(onset - true_onset)),

@@ -79,7 +79,7 @@ def test_static_level_carries_the_covariance_of_its_two_parts(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
     res = fit_measurements(items, model="relaxation2", progress=False)
     for i in range(res.n_trials):
-        v, (static, se) = res.values[i], res.derived[i]["f_static"]
+        v, (static, se) = res.params(i), res.derived[i]["f_static"]
         assert static == pytest.approx(v["f_kin"] + v["f_static_excess"], rel=1e-12)
         model, names = res.member(i), res.free_names(i)
         u = np.asarray(res.u[i], dtype=np.float64)

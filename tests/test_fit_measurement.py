@@ -118,7 +118,8 @@ def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gau
     names = [n for j, n in enumerate(model.param_names) if jtj[0, j, j] > 0]
     assert len(names) >= len(free) - 2
     stats = {"flags": [{n: "trades off with k" for n in names if n != "k"} | {"k": "at bound"}],
-             "cov": scale * np.linalg.pinv(jtj), "values": res.values, "stderr": res.stderr}
+             "cov": scale * np.linalg.pinv(jtj), "values": [res.params(0)],
+             "stderr": [res.stderrs(0)]}
     _ridges_checked(model, free, u, stats, data, np.ones(1))
     kept = [n for n, f in stats["flags"][0].items() if f.startswith("trades off")]
     assert stats["flags"][0]["k"] == "at bound"  # other flags untouched
@@ -174,13 +175,14 @@ def test_each_movements_latency_and_duration_found(simulated):
     res = fit_measurements([d], model=model, progress=False)
     found_commands, _, found_stretch = res.drive_input[0]
     fitted = slice(2, None)  # the first motion is simulated, not fitted
-    onset = found_commands + res.values[0]["delay"] - (commands + shift + truth["delay"])
+    fit = res.params(0)
+    onset = found_commands + fit["delay"] - (commands + shift + truth["delay"])
     assert np.max(np.abs(onset[fitted])) < 0.0005, onset  # s
-    duration = found_stretch * res.values[0]["ramp"] / (stretch * truth["ramp"])
+    duration = found_stretch * fit["ramp"] / (stretch * truth["ramp"])
     assert np.max(np.abs(duration[fitted] - 1)) < 0.01, duration
     for name in ("k", "f_kin", "f_static_excess", "relax_frac", "tau"):
-        assert res.values[0][name] == pytest.approx(truth[name], rel=0.03), name
-    assert res.values[0]["wear"] == pytest.approx(truth["wear"], abs=0.001)  # 1/mm
+        assert fit[name] == pytest.approx(truth[name], rel=0.03), name
+    assert fit["wear"] == pytest.approx(truth["wear"], abs=0.001)  # 1/mm
 
 
 def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):

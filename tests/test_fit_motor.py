@@ -143,7 +143,8 @@ def test_the_whole_fit_takes_each_movements_timing_from_the_motor(read, monkeypa
 
     monkeypatch.setattr(measurement, "_movement_timing", not_searched)
     res = fit_measurements(items, progress=False)
-    for rec, v, se, status in zip(read, res.values, res.stderr, res.status, strict=True):
+    for i, (rec, status) in enumerate(zip(read, res.status, strict=True)):
+        v, se = res.params(i), res.stderrs(i)
         assert status == Status.CONVERGED
         truth = {n: np.median([m["channels"]["index_x"][n] for m in rec.truth["motions"][1:]])
                  for n in ("k", "f_kin")}

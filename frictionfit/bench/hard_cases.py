@@ -119,7 +119,8 @@ def _case_fit(fit: FitResult, trials: Trials, uncertainty: bool) -> CaseFit:
     post = _laplace(fit, trials) if uncertainty else None
     extra = {"post_error": post} if isinstance(post, str) else {} if post is None else {
         "post_median": post[0], "post_sd": post[1], "post_converged": post[2]}
-    return CaseFit(np.asarray(fit.status), fit.values, fit.stderr, fit.flags, list(fit.u),
+    return CaseFit(np.asarray(fit.status), [fit.params(i) for i in range(fit.n_trials)],
+                   [fit.stderrs(i) for i in range(fit.n_trials)], fit.flags, list(fit.u),
                    **extra)
 
 

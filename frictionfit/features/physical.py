@@ -361,7 +361,7 @@ class PhysicalFeatures(RecordingFeatures):
             ok.add(Status.MAX_STEPS)
         for k, (i, ch) in enumerate(where):
             good = Status(int(res.status[k])) in ok
-            out[i][ch] = (np.asarray(self._fitted_row(res.values[k], res.stderr[k],
+            out[i][ch] = (np.asarray(self._fitted_row(res.params(k), res.stderrs(k),
                                                       res.derived[k])) if good
                           else np.full(width, np.nan))
             lateral = next((c for c, of in LATERAL_CHANNELS.items()

@@ -189,7 +189,7 @@ def fit_breakaway(recordings: Sequence[Recording], max_steps: int = 200) -> np.n
         res = fit_trials(y, t, x, model=CONTACT_MODEL, drive="given", u0=u0, direction=sign,
                          max_steps=max_steps)
         for row, i in enumerate(idx):
-            v, se = res.values[row], res.stderr[row]
+            v, se = res.params(row), res.stderrs(row)
             log_k_se = se["k"] / v["k"] if np.isfinite(se["k"]) and v["k"] > 0 else 10.0
             vals = [v["k"], 1.0 + v["f_static_excess"] / v["f_kin"], v["slip_length"], v["tau"],
                     v["relax_frac"], min(log_k_se, 10.0), sign[row], res.r2[row],

@@ -374,7 +374,8 @@ def _extended(model: MeasurementModel, items: Sequence[MeasurementData], smaller
     """Starting points of ``model``: the smaller law's optimum where it has the parameter,
     the data's guess elsewhere (unconstrained)."""
     starts = []
-    for d, v in zip(items, smaller.values, strict=True):
+    for i, d in enumerate(items):
+        v = smaller.params(i)
         start = d.guess | v
         if "f_static_excess" not in v:  # a small peak on top of the kinetic level found
             start["f_static_excess"] = 0.1 * v["f_kin"]

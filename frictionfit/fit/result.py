@@ -102,6 +102,16 @@ class FitResult:
     def n_trials(self) -> int:
         return len(self.model)
 
+    def params(self, i: int) -> dict[str, float]:
+        """Trial ``i``'s own parameters (its model's, in their order), name -> value in
+        physical units (``PARAMS[name].unit``)."""
+        return {n: self.values[i][n] for n in self.member(i).param_names}
+
+    def stderrs(self, i: int) -> dict[str, float]:
+        """Trial ``i``'s own parameters' standard errors (its model's, in their order),
+        name -> stderr in physical units (``PARAMS[name].unit``)."""
+        return {n: self.stderr[i][n] for n in self.member(i).param_names}
+
     def free_names(self, i: int) -> list[str]:
         """The parameters trial ``i``'s fit varied (the rows of ``cov[i]``)."""
         return [n for n in self.values[i] if self.flags[i].get(n) not in ("fixed", "tied")]
@@ -184,8 +194,9 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
         f"    condition number   = {result.cond[i]:.3g}",
         "[[Variables]]",
     ]
-    for name, v in result.values[i].items():
-        se = result.stderr[i][name]
+    stderr = result.stderrs(i)
+    for name, v in result.params(i).items():
+        se = stderr[name]
         unit = PARAMS[name].unit
         pct = f" ({100 * se / abs(v):.2f}%)" if np.isfinite(se) and v != 0 else ""
         flag = result.flags[i].get(name)
