@@ -129,11 +129,11 @@ print(fit_report(whole, 0))
 law = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
 true_whole = {n: np.median([tm["channels"]["index_x"][n] for tm in rec.truth["motions"][1:]])
               for n in law}
-pd.DataFrame({"fitted": {n: whole.values[0][n] for n in law},
-              "stderr": {n: whole.stderr[0][n] for n in law},
+pd.DataFrame({"fitted": whole.values.loc[0, list(law)],
+              "stderr": whole.stderr.loc[0, list(law)],
               "true (median over motions)": true_whole,
-              "per-motion fit (median)": {n: np.median([v[n] for v in result.values])
-                                          if n in result.values[0] else np.nan for n in law},
+              "per-motion fit (median)": {n: np.median(result.values[n])
+                                          if n in result.params(0) else np.nan for n in law},
               "flag": {n: whole.flags[0].get(n, "") for n in law}}).round(4)
 
 # %%

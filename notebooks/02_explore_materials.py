@@ -46,8 +46,7 @@ print(len(recs), "measurements,", len(CLASSES), "classes, e.g.", recs[0].name)
 items = [measurement_data(r, "index_x") for r in recs]
 whole = fit_measurements(items, model="relaxation2", fix={"wear": 0.0},
                          max_steps=200)  # as the fitted features fit
-fits = pd.concat([pd.DataFrame(whole.values), pd.DataFrame(whole.stderr).add_suffix("_stderr")],
-                 axis=1)
+fits = pd.concat([whole.values, whole.stderr.add_suffix("_stderr")], axis=1)
 measured = PhysicalFeatures(channels=("index_x",), cache=False)  # model-free, per phase
 cols = [c.removeprefix("index_x:").split(" ")[0] for c in measured.get_feature_names_out()]
 fits = pd.concat([fits, pd.DataFrame(measured.fit_transform(recs), columns=cols)], axis=1)
@@ -99,7 +98,7 @@ fig.tight_layout()
 # for comparison:
 
 # %%
-worn = pd.DataFrame(fit_measurements(items, model="relaxation2", max_steps=200).values)
+worn = fit_measurements(items, model="relaxation2", max_steps=200).values
 for name in ("k", "f_kin", "tau"):
     ratio = worn[name] / fits[f"true_{name}"]
     print(f"{name:6s} wear fitted: median fitted/true {ratio.median():.3f}, "

@@ -102,7 +102,7 @@ for j, rec in enumerate(slides):
     axes[1, j].plot(ticks, np.full(ticks.size, axes[1, j].get_ylim()[0]), "|k", ms=8)
     axes[1, j].set(xlabel="time [s]")
     print(f"{rec.metadata['fabric']:8s} fit {fit.model[j]} status {int(fit.status[j])} "
-          f"R2 {fit.r2[j]:.3f}  k {fit.values[j]['k']:.3g} 1/mm  tau {fit.values[j]['tau']:.3g} s"
+          f"R2 {fit.r2[j]:.3f}  k {fit.values['k'][j]:.3g} 1/mm  tau {fit.values['tau'][j]:.3g} s"
           f"  stick-slip period {period[j]:.2f} s")
 axes[0, 0].set_ylabel("taxel - its mean [counts]")
 axes[1, 0].set_ylabel("PC1 / its 5-95% range")

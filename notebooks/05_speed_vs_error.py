@@ -71,9 +71,9 @@ def settings_stage(n: int = 16, seed: int = 0) -> dict:
         timed(call)  # compile
         seconds, res = timed(call)
         ok = res.status == Status.CONVERGED
-        errors = [abs(res.values[i][p] - ts.truth[p][i]) / max(abs(ts.truth[p][i]), 0.05)
+        errors = [abs(res.values[p][i] - ts.truth[p][i]) / max(abs(ts.truth[p][i]), 0.05)
                   for i in np.flatnonzero(ok) for p in bench_fit.IDENTIFIABLE
-                  if p in res.values[i] and p in ts.truth]
+                  if p in res.values and p in ts.truth]  # one law: its parameters
         points.append({"config": config, "seconds_per_trial": seconds / n,
                        "error": float(np.median(errors)) if errors else float("nan"),
                        "error_name": "median rel. param error",

@@ -19,10 +19,10 @@ def test_recovers_friction_levels(stick_slip_fit):
     # Friction levels are the well-identified quantities at 30 dB; 5% median is the
     # issue's bar. k/ramp/slip_length trade off and are checked only for finiteness.
     for name in ("f_kin", "offset"):
-        est = np.array([v[name] for v in res.values])
+        est = res.values[name].to_numpy()
         rel = np.abs(est - ts.truth[name]) / np.maximum(np.abs(ts.truth[name]), 0.05)
         assert np.median(rel) < 0.05, (name, rel)
-    assert all(np.isfinite(list(v.values())).all() for v in res.values)
+    assert np.isfinite(res.values.to_numpy()).all()
 
 
 def test_nan_samples_are_masked_not_propagated():

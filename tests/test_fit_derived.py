@@ -34,7 +34,8 @@ def _with_shaking(rec, amplitude: float, hz: float = 70.0):
 def test_held_force_is_the_step_between_the_data_held_levels(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
     res = fit_measurements(items, model="relaxation2", progress=False)
-    for d, values, derived in zip(items, res.values, res.derived, strict=True):
+    for d, values, derived in zip(items, res.values.to_dict("records"), res.derived,
+                                  strict=True):
         held, se = derived["f_held"]
         ends = []  # the data's level over the last 50 ms of every fitted hold, drift removed
         for c in d.commands[3:]:
@@ -48,7 +49,8 @@ def test_held_force_is_the_step_between_the_data_held_levels(recordings):
 def test_peak_force_is_half_the_data_swing_between_strokes(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
     res = fit_measurements(items, model="relaxation2", progress=False)
-    for d, values, derived in zip(items, res.values, res.derived, strict=True):
+    for d, values, derived in zip(items, res.values.to_dict("records"), res.derived,
+                                  strict=True):
         peak, se = derived["f_peak"]
         swings = []  # per fitted out-back pair: half the data's peak-to-peak, drift removed
         y = d.direction * (d.y - values["drift"] * d.t)
@@ -95,7 +97,7 @@ def test_static_level_carries_the_covariance_of_its_two_parts(recordings):
                         / (2 * h))
         grad = np.asarray(grad)
         assert se == pytest.approx(np.sqrt(grad @ res.cov[i] @ grad), rel=1e-4)
-        assert se < np.hypot(res.stderr[i]["f_kin"], res.stderr[i]["f_static_excess"])
+        assert se < np.hypot(res.stderr["f_kin"][i], res.stderr["f_static_excess"][i])
 
 
 def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):

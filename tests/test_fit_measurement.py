@@ -135,7 +135,7 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     for name in ("k", "f_kin"):
         truth = [np.median([m["channels"]["index_x"][name] for m in r.truth["motions"][1:]])
                  for r in simulated]
-        fitted = np.array([v[name] for v in res.values])
+        fitted = res.values[name].to_numpy()
         err[name] = np.median(np.abs(fitted / np.array(truth) - 1))
     # measured on these six: k 0.03, f_kin 0.01 (per-motion fits: k off by 50x)
     assert err["k"] < 0.10 and err["f_kin"] < 0.05, err
@@ -153,7 +153,7 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     u_k = res.u[0][MeasurementModel(res.model[0].removeprefix("measurement-")).param_names
                    .index("k")]
     slope = (PARAMS["k"].to_physical(u_k + h) - PARAMS["k"].to_physical(u_k - h)) / (2 * h)
-    assert res.stderr[0]["k"] == pytest.approx(abs(slope) * np.sqrt(res.cov[0][j, j]), rel=1e-5)
+    assert res.stderr["k"][0] == pytest.approx(abs(slope) * np.sqrt(res.cov[0][j, j]), rel=1e-5)
 
 
 def test_each_movements_latency_and_duration_found(simulated):
@@ -235,13 +235,12 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
     res = fit_measurements(items, rig="session", progress=False)
     sessions = np.array([d.session for d in items])
     for name in ("delay", "ramp", "accel"):
-        values = np.array([v[name] for v in res.values])
+        values = res.values[name].to_numpy()
         for s in (1, 2):
             assert np.ptp(values[sessions == s]) == 0.0  # one motor per day
         assert all(f[name] == "fixed" for f in res.flags)
     truth = [np.median([m["ramp"] for m in r.truth["motions"][1:]]) for r in simulated]
-    ramps = np.array([v["ramp"] for v in res.values])
-    np.testing.assert_allclose(ramps, truth, rtol=0.05)
+    np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
 
 
 def test_fix_rejects_unknown_parameters(simulated):
@@ -275,11 +274,11 @@ def test_single_motions_refitted_with_the_rig_and_sensor_held(simulated):
     assert sorted(set(motion_of.tolist())) == [1, 2, 3, 4]
     fitted, true = [], []
     for r, (i, m) in enumerate(zip(item_of, motion_of, strict=True)):
-        assert motions.values[r]["ramp"] == whole.values[i]["ramp"]
+        assert motions.values["ramp"][r] == whole.values["ramp"][i]
         # each motion's own friction (the simulator wears it by 1 % per motion, +-2 % jitter),
         # where the refit converged and did not trade f_kin off (carpet's fast relaxation can)
         if motions.status[r] == Status.CONVERGED and "f_kin" not in motions.flags[r]:
-            fitted.append(motions.values[r]["f_kin"])
+            fitted.append(motions.values["f_kin"][r])
             true.append(simulated[i].truth["motions"][m]["channels"]["index_x"]["f_kin"])
     assert len(fitted) >= 9
     np.testing.assert_allclose(fitted, true, rtol=0.1)

@@ -25,7 +25,7 @@ def _fit(ts, **kw):
 
 
 def _median_error(res, ts, name):
-    est = np.array([v[name] for v in res.values])
+    est = res.values[name].to_numpy()
     return float(np.median(np.abs(est - ts.truth[name]) / ts.truth[name]))
 
 
@@ -43,7 +43,7 @@ def test_default_movement_prior_pins_the_stiffness_ridge(trials):
 def test_strong_prior_wins_and_posterior_carries_it(trials):
     ts = simulate_trials(RELAX, 2, seed=12)
     res = _fit(ts, priors={"ramp": (0.2, 0.005)})
-    ramps = np.array([v["ramp"] for v in res.values])
+    ramps = res.values["ramp"].to_numpy()
     np.testing.assert_allclose(ramps, 0.2, rtol=0.02)  # truth is 0.10-0.15 s
     post = sample_posterior(res, ts.y, ts.t, (ts.t_out, ts.t_back), method="laplace")
     sd = np.array([post.sd[i]["ramp"] for i in range(2)])

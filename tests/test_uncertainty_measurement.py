@@ -51,9 +51,9 @@ def test_laplace_draws_have_the_fits_stderr(fitted, laplace):
         for name in IDENTIFIED:
             # 4000 draws: the sd of their sd is ~1.1 %; the delta method and the draws
             # agree to < 1 % where the stderr is a few per cent of the value
-            assert laplace.sd[i][name] == pytest.approx(res.stderr[i][name], rel=0.05)
+            assert laplace.sd[i][name] == pytest.approx(res.stderr[name][i], rel=0.05)
             q = laplace.quantiles[i][name]
-            assert q[0] < q[1] < res.values[i][name] < q[3] < q[4]
+            assert q[0] < q[1] < res.values[name][i] < q[3] < q[4]
 
 
 def test_laplace_is_the_default(fitted, laplace):

@@ -173,7 +173,7 @@ def _ours(ts: TrialSet, model: str, **kw):
 
     def call():
         res = fit_trials(trials, model=model, **kw)
-        flagged = {n: np.array([n in f for f in res.flags]) for n in res.values[0]}
+        flagged = {n: np.array([n in f for f in res.flags]) for n in res.values}
         return np.stack(res.u), res.status == Status.CONVERGED, flagged
 
     return call

@@ -19,7 +19,7 @@ from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
-from frictionfit.fit.result import FitResult
+from frictionfit.fit.result import FitResult, param_table
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.fit.trials import Trials, as_trials
 from frictionfit.models import FAMILY, PARAMS, get_model
@@ -378,11 +378,12 @@ def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto:
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
             for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
     per_trial = {k: [r[k][i] for i, r in enumerate(rows)]
-                 for k in ("values", "stderr", "flags", "u", "correl", "cov")}
+                 for k in ("flags", "u", "correl", "cov")}
+    tables = {k: param_table([r[k][i] for i, r in enumerate(rows)]) for k in ("values", "stderr")}
     return FitResult(
         model=list(chosen), status=pick["status"], chi2=pick["chi2"], redchi=pick["redchi"],
         aic=pick["aic"], bic=pick["bic"], r2=r2, cond=pick["cond"], n_steps=pick["steps"],
-        init=[inits[name][i] for i, name in enumerate(chosen)], **per_trial,
+        init=[inits[name][i] for i, name in enumerate(chosen)], **per_trial, **tables,
         bic_table=bic if auto else None, wall_s=time.perf_counter() - start,
         solver=solver, n_starts=how.n_starts, direction=batch.trials.direction,
         drive_input=batch.trials.drive_input, drive=how.drive, stroke_mm=how.stroke_mm,

@@ -37,7 +37,7 @@ from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.motor import MotorTiming, motor_timing
-from frictionfit.fit.result import FitResult, concat_results, take_trials
+from frictionfit.fit.result import FitResult, concat_results, param_table, take_trials
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import RIG, to_unconstrained
@@ -358,7 +358,7 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
                 sub.append(replace(driven, weight=weight))
                 starts.append(result.u[i])
                 for n in SETUP:
-                    fixed[n].append(result.values[i][n])
+                    fixed[n].append(result.values.at[i, n])
                 rows.append(len(rows))
                 item_of.append(i)
                 motion_of.append(m)
@@ -516,7 +516,7 @@ def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[st
     sessions = np.array([str(d.session) for d in items])
     held = {}
     for name in RIG:
-        own = np.array([v[name] for v in result.values])
+        own = result.values[name].to_numpy()
         value = own.copy()
         for s in np.unique(sessions):
             pick = (sessions == s) & usable
@@ -589,7 +589,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     status = np.array([status_of(len(free), code[i] == Status.CONVERGED, u[i], stats["chi2"][i],
                                  cond[i], mask[i]) for i in range(len(items))])
     return FitResult(
-        model=[model.name] * len(items), values=stats["values"], stderr=stats["stderr"],
+        model=[model.name] * len(items), values=param_table(stats["values"]),
+        stderr=param_table(stats["stderr"]),
         flags=stats["flags"], status=status.astype(np.int64), chi2=stats["chi2"],
         redchi=stats["redchi"], aic=stats["aic"], bic=stats["bic"], r2=r2, cond=cond,
         n_steps=steps, u=list(u), direction=data[6], drive="measurement",

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,7 +12,7 @@ import pandas as pd
 from frictionfit.errors import FitError, Status
 from frictionfit.models import PARAMS
 
-__all__ = ["FitResult", "concat_results", "fit_report", "take_trials"]
+__all__ = ["FitResult", "concat_results", "fit_report", "param_table", "take_trials"]
 
 
 @dataclass
@@ -23,9 +23,13 @@ class FitResult:
     ----------
     model : list of str
         The model fitted (or chosen, with ``model="auto"``) per trial.
-    values, stderr : list of dict
-        Physical parameter values and standard errors per trial (NaN stderr only
-        where the covariance could not be computed; such parameters are flagged).
+    values, stderr : DataFrame
+        Physical parameter values and standard errors (unit: ``PARAMS[name].unit``), one
+        row per trial and one column per parameter of any trial's model (in the order
+        they first appear): ``values["k"]`` is a column, ``values.loc[i]`` a row. NaN where
+        a trial's model has no such parameter, where a trial has no fit (too little data),
+        and in ``stderr`` where the covariance could not be computed (such parameters are
+        flagged). :meth:`params` and :meth:`stderrs` give one trial's own parameters.
     flags : list of dict
         Per parameter, a short reason it is not identifiable ("at bound",
         "stderr > value", "singular", "trades off with <name>") or that it was not
@@ -63,8 +67,8 @@ class FitResult:
     """
 
     model: list[str]
-    values: list[dict]
-    stderr: list[dict]
+    values: pd.DataFrame
+    stderr: pd.DataFrame
     flags: list[dict]
     status: np.ndarray
     chi2: np.ndarray
@@ -105,27 +109,32 @@ class FitResult:
     def params(self, i: int) -> dict[str, float]:
         """Trial ``i``'s own parameters (its model's, in their order), name -> value in
         physical units (``PARAMS[name].unit``)."""
-        return {n: self.values[i][n] for n in self.member(i).param_names}
+        return _own(self.values, i, self.member(i).param_names)
 
     def stderrs(self, i: int) -> dict[str, float]:
         """Trial ``i``'s own parameters' standard errors (its model's, in their order),
         name -> stderr in physical units (``PARAMS[name].unit``)."""
-        return {n: self.stderr[i][n] for n in self.member(i).param_names}
+        return _own(self.stderr, i, self.member(i).param_names)
 
     def free_names(self, i: int) -> list[str]:
         """The parameters trial ``i``'s fit varied (the rows of ``cov[i]``)."""
-        return [n for n in self.values[i] if self.flags[i].get(n) not in ("fixed", "tied")]
+        return [n for n in self.member(i).param_names
+                if self.flags[i].get(n) not in ("fixed", "tied")]
 
     def to_frame(self, ids=None) -> pd.DataFrame:
         """One row per trial: id, model, status, each parameter with stderr and unit, stats."""
+        names = {m: self.member(self.model.index(m)).param_names  # one lookup per model
+                 for m in dict.fromkeys(self.model)}
         rows = []
         for i in range(self.n_trials):
             row = {"trial": i if ids is None else ids[i], "model": self.model[i],
                    "status": Status(int(self.status[i])).name.lower()}
-            for name, v in self.values[i].items():
+            own = names[self.model[i]]
+            values, stderr = _own(self.values, i, own), _own(self.stderr, i, own)
+            for name, v in values.items():
                 unit = PARAMS[name].unit
                 row[f"{name} [{unit}]"] = v
-                row[f"{name}_stderr [{unit}]"] = self.stderr[i][name]
+                row[f"{name}_stderr [{unit}]"] = stderr[name]
                 row[f"{name}_flag"] = self.flags[i].get(name, "")
             for name, (v, se) in (self.derived[i] if self.derived is not None else {}).items():
                 row[f"{name} [N]"] = v
@@ -230,6 +239,19 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
             mark = "  <-- chosen" if name == result.model[i] else ""
             lines.append(f"    {name:16s} {b:.6g}{mark}")
     return "\n".join(lines)
+
+
+def param_table(rows: Sequence[Mapping[str, float]]) -> pd.DataFrame:
+    """Per-trial ``name -> value`` dicts as :attr:`FitResult.values` holds them: one row per
+    trial, one float64 column per parameter (in the order they first appear), NaN where a
+    trial has no such parameter."""
+    return pd.DataFrame(list(rows), index=pd.RangeIndex(len(rows)), dtype=np.float64)
+
+
+def _own(table: pd.DataFrame, i: int, names: Sequence[str]) -> dict[str, float]:
+    """Row ``i`` of a per-parameter table, as ``name -> value`` over ``names``."""
+    row = table.iloc[i]
+    return {n: float(row[n]) for n in names}
 
 
 def _concat(values: list, name: str):
