@@ -35,7 +35,10 @@ def test_nan_samples_are_masked_not_propagated():
     assert np.isfinite(res.chi2[0]) and res.status[0] != Status.NONFINITE
     frame = res.to_frame()
     assert len(frame) == 4
-    # nothing was fitted to the empty trial: its numbers are NaN, not the starting point
+    # nothing was fitted to the empty trial: its numbers are NaN, not the starting point;
+    # its parameters are still its model's
+    assert list(res.params(1)) == list(res.member(1).param_names)
+    assert np.isnan(list(res.params(1).values())).all()
     assert frame.filter(regex=r"^(k|f_kin|offset)(_stderr)? \[").iloc[1].isna().all()
     assert frame.filter(regex=r"^(k|f_kin|offset) \[").iloc[0].notna().all()
 
@@ -65,6 +68,40 @@ def test_report_shows_starting_values_and_strong_correlations(stick_slip_fit):
     assert f"C({a}, {b}) = {r:+.4f}" in report
     assert all(-1.0 <= r <= 1.0 for r in res.correl[0].values())
     assert repr(res).startswith(f"FitResult({res.n_trials} trials, models")
+
+
+def test_values_by_column_and_results_of_two_laws_concatenated(stick_slip_fit):
+    from frictionfit.fit.result import concat_results, take_trials
+
+    _, slip = stick_slip_fit
+    ts = simulate_trials("elastic_plastic", 2, seed=2)
+    plastic = fit_trials(ts.y, ts.t, (ts.t_out, ts.t_back), model="elastic_plastic",
+                         chunk_size=4)
+    for res in (slip, plastic):
+        assert list(res.values.columns) == list(res.member(0).param_names)
+        assert (res.values.dtypes == np.float64).all()
+        assert list(res.stderr.index) == list(range(res.n_trials))
+        for i in range(res.n_trials):
+            assert res.values["k"][i] == res.params(i)["k"]
+            assert res.stderr["k"][i] == res.stderrs(i)["k"]
+    merged = concat_results([plastic, slip])
+    own = [plastic.params(i) for i in range(2)] + [slip.params(i) for i in range(8)]
+    assert list(own[0]) == ["offset", "k", "f_kin", "delay", "ramp"]
+    # the union of the laws' parameters, in the order they first appear
+    assert list(merged.values.columns) == [*own[0], "f_static_excess", "slip_length"]
+    assert list(merged.stderr.columns) == list(merged.values.columns)
+    assert merged.values["slip_length"][:2].isna().all()
+    assert merged.values["slip_length"][2:].notna().all()
+    np.testing.assert_equal([merged.params(i) for i in range(10)], own)
+    assert [list(merged.params(i)) for i in range(10)] == [list(o) for o in own]
+    np.testing.assert_equal(merged.stderrs(9), slip.stderrs(7))
+    assert "slip_length [mm]" not in plastic.to_frame()
+    assert merged.to_frame()["slip_length [mm]"][:2].isna().all()
+    back = take_trials(merged, [3, 0])
+    assert back.model == ["stick_slip", "elastic_plastic"] and back.n_trials == 2
+    assert list(back.values.index) == [0, 1]
+    np.testing.assert_equal([back.params(0), back.params(1)], [own[3], own[0]])
+    np.testing.assert_equal(back.stderrs(1), plastic.stderrs(0))
 
 
 def test_bad_shapes_raise_named_error():
