@@ -33,6 +33,10 @@ def test_nan_samples_are_masked_not_propagated():
     res = fit_trials(y, ts.t, (ts.t_out, ts.t_back), model="elastic_plastic", chunk_size=4)
     assert Status(int(res.status[1])) is Status.INSUFFICIENT_DATA
     assert np.isfinite(res.chi2[0]) and res.status[0] != Status.NONFINITE
+    # lmfit's counts: the masked samples are not data points
+    assert res.ndata[0] == np.isfinite(y[0]).sum() < res.ndata[2] == y.shape[1]
+    assert res.nvarys[0] == len(res.free_names(0))
+    assert f"# data points      = {res.ndata[0]}" in fit_report(res, 0)
     frame = res.to_frame()
     assert len(frame) == 4
     # nothing was fitted to the empty trial: its numbers are NaN, not the starting point;

@@ -376,13 +376,15 @@ def _assemble(fits, inits, batch: Batch, how: MemberSettings, solver: str, auto:
         r2 = 1.0 - np.divide(chi2, total_ss, out=np.full_like(chi2, np.nan),
                              where=total_ss > 0)
     pick = {k: np.array([r[k][i] for i, r in enumerate(rows)])
-            for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status")}
+            for k in ("chi2", "redchi", "aic", "bic", "cond", "steps", "status", "ndata",
+                      "nvarys")}
     per_trial = {k: [r[k][i] for i, r in enumerate(rows)]
                  for k in ("flags", "u", "correl", "cov")}
     tables = {k: param_table([r[k][i] for i, r in enumerate(rows)]) for k in ("values", "stderr")}
     return FitResult(
         model=list(chosen), status=pick["status"], chi2=pick["chi2"], redchi=pick["redchi"],
         aic=pick["aic"], bic=pick["bic"], r2=r2, cond=pick["cond"], n_steps=pick["steps"],
+        ndata=pick["ndata"], nvarys=pick["nvarys"],
         init=[inits[name][i] for i, name in enumerate(chosen)], **per_trial, **tables,
         bic_table=bic if auto else None, wall_s=time.perf_counter() - start,
         solver=solver, n_starts=how.n_starts, direction=batch.trials.direction,

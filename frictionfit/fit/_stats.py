@@ -186,7 +186,8 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
         flags.append(_flags(model, values[i], stderrs[i], scale[i], corr[i], free,
                             set(fixed_names)))
     return dict(values=values, stderr=stderrs, flags=flags, chi2=chi2, redchi=redchi,
-                aic=aic, bic=bic, cond=cond, correl=correls, cov=cov)
+                aic=aic, bic=bic, cond=cond, correl=correls, cov=cov,
+                ndata=n.astype(np.int64), nvarys=np.full(n_trials, p, dtype=np.int64))
 
 
 def choose(bic: pd.DataFrame) -> list[str]:

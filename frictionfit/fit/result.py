@@ -38,6 +38,9 @@ class FitResult:
     chi2, redchi, aic, bic, r2, cond : ndarray
     n_steps : ndarray
         Solver steps used.
+    ndata, nvarys : ndarray, optional
+        Per trial, the data points fitted (samples, or blocks of a whole measurement; those
+        masked out not counted) and the parameters varied (lmfit's names).
     bic_table : DataFrame or None
         With ``model="auto"``: BIC per trial (rows) and family member (columns).
     wall_s : float
@@ -93,6 +96,8 @@ class FitResult:
     derived: list[dict] | None = field(default=None, repr=False)
     cov: list[np.ndarray] | None = field(default=None, repr=False)
     block_var: np.ndarray | None = field(default=None, repr=False)
+    ndata: np.ndarray | None = field(default=None, repr=False)
+    nvarys: np.ndarray | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         from collections import Counter
@@ -195,6 +200,8 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
         f"    status             = {Status(int(result.status[i])).name}"
         f" ({Status(int(result.status[i])).message})",
         f"    solver steps       = {result.n_steps[i]}",
+        *([f"    # data points      = {result.ndata[i]}", f"    # variables        = "
+           f"{result.nvarys[i]}"] if result.ndata is not None else []),
         f"    chi-square         = {result.chi2[i]:.6g}",
         f"    reduced chi-square = {result.redchi[i]:.6g}",
         f"    Akaike info crit   = {result.aic[i]:.6g}",
