@@ -38,6 +38,7 @@ def test_nan_samples_are_masked_not_propagated():
     assert res.nvarys[0] == len(res.free_names(0))
     assert f"# data points      = {res.ndata[0]}" in fit_report(res, 0)
     frame = res.to_frame()
+    assert frame["ndata"].tolist() == res.ndata.tolist()
     assert len(frame) == 4
     # nothing was fitted to the empty trial: its numbers are NaN, not the starting point;
     # its parameters are still its model's

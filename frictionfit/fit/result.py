@@ -144,8 +144,10 @@ class FitResult:
             for name, (v, se) in (self.derived[i] if self.derived is not None else {}).items():
                 row[f"{name} [N]"] = v
                 row[f"{name}_stderr [N]"] = se
-            for stat in ("chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps"):
-                row[stat] = getattr(self, stat)[i]
+            for stat in ("chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps", "ndata",
+                         "nvarys"):
+                if getattr(self, stat) is not None:
+                    row[stat] = getattr(self, stat)[i]
             row["wall_s_per_trial"] = self.wall_s / max(self.n_trials, 1)
             rows.append(row)
         return pd.DataFrame(rows)
