@@ -204,10 +204,10 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 19  # 19: each movement's duration found by the whole fits
+    _version = 20  # 20: the contact simulation's Jacobian by a compiled loop
     _view_params = ("with_stderr",)  # the stderrs are stored either way
-    #: Recordings per batched fit: 64 x 2 rubbing channels keep two threads' pools of 16
-    #: refilled (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the
+    #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
+    #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the
     #: median over a block's recordings of one session.
     _block = 64
 

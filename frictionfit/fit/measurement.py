@@ -260,7 +260,6 @@ def fit_measurements(
     u0: np.ndarray | None = None,
     max_steps: int = 400,
     pool_size: int = 16,
-    threads: int | None = None,
     progress: bool | None = None,
 ) -> FitResult:
     """Fit ``model`` to every item (``progress``: a bar; default: on a terminal, from 16
@@ -291,7 +290,7 @@ def fit_measurements(
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
     start = time.perf_counter()
-    kw = dict(max_steps=max_steps, pool_size=pool_size, threads=threads, progress=progress)
+    kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
     again = rig == "session" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
@@ -332,8 +331,7 @@ SETUP = ("offset", "drift", "leak", *RIG)
 
 
 def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_steps: int = 100,
-                pool_size: int = 16, threads: int | None = None
-                ) -> tuple[FitResult, np.ndarray, np.ndarray]:
+                pool_size: int = 16) -> tuple[FitResult, np.ndarray, np.ndarray]:
     """Each fitted motion of each item on its own: the law refitted on the motion's window
     (from its out command to the next one), rig and sensor held at the whole fit's values
     (:data:`SETUP`), from the whole fit's optimum; the earlier motions are still simulated.
@@ -365,7 +363,7 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
         if sub:
             parts.append(_fit(sub, model=model, fix={n: np.array(v) for n, v in fixed.items()},
                               u0=np.stack(starts), max_steps=max_steps, pool_size=pool_size,
-                              threads=threads, progress=False))
+                              progress=False))
     return concat_results(parts), np.array(item_of), np.array(motion_of)
 
 
@@ -534,13 +532,17 @@ FIRST_FIT_TOLERANCES = {"ftol": 1e-4, "xtol": 1e-6}
 SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 
 
-def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
+def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
          tolerances: Mapping[str, float] | None = None, final: bool = True) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
     ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
     of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults. ``final=False``
     (a fit another one polishes): no derived quantities, and the "trades off" flags are
-    not checked along their profiles (a fifth of the CPU time of a whole-fit batch)."""
+    not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
+
+    The pools run in one host thread: the contact simulation's Jacobian is a host
+    callback (:mod:`frictionfit.models._forward`) that shares its rows over the cores
+    itself, and JAX's CPU callbacks can deadlock when two threads run such programs."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:
@@ -556,13 +558,12 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, threads, progress,
     # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
     solver = BatchedLevenbergMarquardt(**{field[k]: v for k, v in (tolerances or {}).items()})
-    threads = available_cores() if threads is None else threads
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
         u_free, code, steps, at_solution = solve_pooled(
             solver, residual, base[:, free], data, pool_size=pool_size, max_steps=max_steps,
-            threads=threads, progress=bar.update, solver_stats=True)
+            threads=1, progress=bar.update, solver_stats=True)
     u = base.copy()
     u[:, free] = u_free
     relabelled = np.zeros(len(items), bool)

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.models._forward import contact_jacobian
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
@@ -186,22 +187,33 @@ def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     ``theta`` the law's parameters then :data:`RIG` (physical).
 
     Its derivative is the Jacobian in the ``varied`` entries of ``theta`` times their
-    tangent: a Jacobian of the whole model (``jacfwd``) then pushes only these parameters
-    through the sequential contact simulation, not the sensor's and the drag's, which enter
-    after it (~25 % fewer lanes in the scan), nor the held ones (a held rig halves the
-    simulation's Jacobian: the drive's tangent is its costliest). ``t``, ``commands``,
-    ``signs`` and ``stretch`` are data: never differentiated. ``varied=None``: the plain
-    simulation, differentiable in every input.
+    tangent, computed by the compiled loop of :mod:`frictionfit.models._forward` (the
+    scan's ``jacfwd`` is bound by XLA's kernel launches): a Jacobian of the whole model
+    (``jacfwd``) then pushes only these parameters through the sequential contact
+    simulation, not the sensor's and the drag's, which enter after it, nor the held ones
+    (a held rig leaves the drive's tangents out). ``t``, ``commands``, ``signs`` and
+    ``stretch`` are data: never differentiated. ``varied=None``: the plain simulation,
+    differentiable in every input.
     """
     names = LAWS[law]
+    m = len(names)
+
+    def travel(rig, t, commands, signs, stretch):
+        return _travel(stroke_mm, *rig, t, commands, signs, stretch)[0]
+
+    def intervals(t):
+        return jnp.diff(t, prepend=2.0 * t[0] - t[1])
 
     def force(theta, t, commands, signs, stretch):
-        x, _ = _travel(stroke_mm, *theta[len(names):], t, commands, signs, stretch)
-        dt = jnp.diff(t, prepend=2.0 * t[0] - t[1])
-        return contact_force(x, dt, **dict(zip(names, theta[: len(names)], strict=True)))
+        x = travel(theta[m:], t, commands, signs, stretch)
+        return contact_force(x, intervals(t), **dict(zip(names, theta[:m], strict=True)))
 
     if varied is None:
         return force
+
+    def on_host(x, xdot, dt, params):
+        return contact_jacobian(np.asarray(x), np.asarray(xdot), np.asarray(dt),
+                                np.asarray(params), names)
 
     @jax.custom_jvp
     def simulated(theta, t, commands, signs, stretch):
@@ -210,11 +222,15 @@ def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     @simulated.defjvp
     def _(primals, tangents):
         theta, t, commands, signs, stretch = primals
+        x = travel(theta[m:], t, commands, signs, stretch)
+        xdot = (jax.jacfwd(travel)(theta[m:], t, commands, signs, stretch)
+                if max(varied) >= m else jnp.zeros((t.size, 0), t.dtype))
+        shapes = (jax.ShapeDtypeStruct(t.shape, t.dtype),
+                  jax.ShapeDtypeStruct((t.size, m + xdot.shape[1]), t.dtype))
+        value, jac = jax.pure_callback(on_host, shapes, x, xdot, intervals(t), theta[:m],
+                                       vmap_method="broadcast_all")
         idx = jnp.asarray(varied, dtype=int)
-        jac, value = jax.jacfwd(
-            lambda th: (force(theta.at[idx].set(th), t, commands, signs, stretch),) * 2,
-            has_aux=True)(theta[idx])
-        return value, jac @ tangents[0][idx]
+        return value, jac[:, idx] @ tangents[0][idx]
 
     return simulated
 
