@@ -50,15 +50,35 @@ def _branch(w, dw, z, dz, zn, dzn, dt, tau, i_tau):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _limit(p, lanes, to_half, s, ds, dlim):
+    """The slider's limit (N), ``to_half`` mm of travel before the drive's halfway point and
+    after a slip ``s`` (mm) since the last reversal; its tangents written into ``dlim``."""
+    _, i_fk, i_fse, i_sl, _, _, _, _, _, i_wear = lanes
+    scale = math.exp(p[i_wear] * to_half) if i_wear >= 0 else 1.0
+    limit = p[i_fk] * scale
+    dlim[:] = 0.0
+    dlim[i_fk] = scale
+    if i_wear >= 0:
+        dlim[i_wear] = limit * to_half
+    if i_fse >= 0:
+        f_se, length = p[i_fse], p[i_sl]
+        decay = math.exp(-s / length)
+        limit += f_se * decay
+        for j in range(dlim.size):
+            dlim[j] -= f_se * decay / length * ds[j]
+        dlim[i_fse] += decay
+        dlim[i_sl] += f_se * decay * s / length**2
+    return limit
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _one(x, xdot, dt, p, lanes, force, jac):
     """Force (n,) and Jacobian (n, m + r) of one simulation, written into the outputs."""
     n, r = xdot.shape
     m = p.size
     q = m + r
-    i_k, i_fk, i_fse, i_sl, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
-    k, f_kin = p[i_k], p[i_fk]
-    f_se = p[i_fse] if i_fse >= 0 else 0.0
-    slip_length = p[i_sl] if i_sl >= 0 else 1.0
+    i_k, _, i_fse, _, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
+    k = p[i_k]
     rf = p[i_rf] if i_rf >= 0 else 0.0
     rf2 = p[i_rf2] if i_rf2 >= 0 else 0.0
     w2_frac = rf2 * (1.0 - rf)
@@ -77,25 +97,11 @@ def _one(x, xdot, dt, p, lanes, force, jac):
             dstep[m + c] = xdot[i, c] - xdot[i - 1, c] if i > 0 else 0.0
         moving = step != 0.0
         new_dir = (1.0 if step > 0.0 else -1.0) if moving else direction
-        scale = 1.0
-        if i_wear >= 0:
-            travel += abs(step)
-            scale = math.exp(p[i_wear] * (half - travel))
-        limit = f_kin * scale
-        dlim[:] = 0.0
-        dlim[i_fk] = scale
-        if i_wear >= 0:
-            dlim[i_wear] = limit * (half - travel)
-        if i_fse >= 0:
-            if moving and new_dir != direction:  # reversal: stuck again
-                s = 0.0
-                ds[:] = 0.0
-            decay = math.exp(-s / slip_length)
-            limit += f_se * decay
-            for j in range(q):
-                dlim[j] -= f_se * decay / slip_length * ds[j]
-            dlim[i_fse] += decay
-            dlim[i_sl] += f_se * decay * s / slip_length**2
+        travel += abs(step)
+        if moving and new_dir != direction:  # reversal: stuck again
+            s = 0.0
+            ds[:] = 0.0
+        limit = _limit(p, lanes, half - travel, s, ds, dlim)
         direction = new_dir
         z_max = limit / k
         z_trial = z + step

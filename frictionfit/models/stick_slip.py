@@ -121,7 +121,10 @@ def contact_force(
     pieces, is one continuous history; ``state`` is ``(z, slip, (w per Maxwell branch),
     last x, last direction, travel)``, displacements in mm); every update is exact for any
     interval and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest
-    on a 2-core CPU for batched Jacobians).
+    on a 2-core CPU for batched Jacobians). The whole-measurement fits take this
+    recurrence's forward-mode Jacobian from a compiled twin
+    (:mod:`frictionfit.models._forward`, tested against ``jax.jacfwd`` of this scan): a
+    change to the law here must be made there too.
     """
     weakening = f_static_excess is not None
     wearing = wear is not None
