@@ -14,8 +14,8 @@ FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted
                  "texture), handcrafted, fftbins, spectral, raw, gesture, touch, shortcut; a "
                  "comma list concatenates them. Default by dataset kind: recordings "
                  "physical,fitted (the most accurate and best calibrated; a fit per "
-                 "recording, about 1 s each on 2 cores), fabricslide sliding, gesture "
-                 "gesture.")
+                 "recording, about 0.2 s each on 2 cores once compiled), fabricslide "
+                 "sliding, gesture gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
                 "within-class scatter), none, or auto: lda when the data span several sessions.")
