@@ -83,12 +83,17 @@ def test_relabelled_branches_predict_the_same_force():
                                model.predict(jnp.asarray(u), t, cmd, signs, 1.0), atol=1e-9)
 
 
-def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
+def _one_motion():
+    """A ``relaxation2`` model, a point in its unconstrained coordinates, and one out-back
+    motion's times and commands (s) and signs."""
     model = MeasurementModel("relaxation2")
     u = jnp.asarray(to_unconstrained(model, {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3,
                                              "relax_frac": 0.2, "tau": 0.1, "delay": 0.01}))
-    t = jnp.arange(2500) / 1000.0
-    cmd, signs = jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
+    return model, u, jnp.arange(2500) / 1000.0, jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
+
+
+def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
+    model, u, t, cmd, signs = _one_motion()
     rig = ("delay", "ramp", "accel")
     full = jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0))(u)
     held = jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0, rig))(u)
@@ -97,6 +102,20 @@ def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
     np.testing.assert_allclose(held[:, free], full[:, free], rtol=1e-10, atol=1e-12)
     at_rig = [model.param_names.index(n) for n in rig]  # only the travel's part is left
     assert not np.allclose(held[:, at_rig], full[:, at_rig])
+
+
+def test_the_models_jacobian_through_the_compiled_loop_is_the_plain_simulations():
+    # predict's derivative (the loop, behind a custom JVP) against the plain scan's, whose
+    # derivative JAX takes itself (timing_derivatives=True), at every parameter, batched as
+    # the fits' pools call it.
+    model, u, t, cmd, signs = _one_motion()
+    loop = jax.jit(jax.vmap(jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0))))
+    scan = jax.jit(jax.vmap(jax.jacfwd(lambda w: model.predict(
+        w, t, cmd, signs, 1.0, timing_derivatives=True))))
+    us = jnp.stack([u, u + 0.05, u - 0.05])
+    want = scan(us)
+    assert np.abs(want).max(axis=(0, 1)).min() > 0
+    np.testing.assert_allclose(loop(us), want, rtol=1e-10, atol=1e-12 * np.abs(want).max())
 
 
 @pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])

@@ -5,9 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from frictionfit.models import MeasurementModel, contact_force
+from frictionfit.models import contact_force
 from frictionfit.models._forward import contact_jacobian
-from frictionfit.models.measurement import LAWS, RIG, _travel, to_unconstrained
+from frictionfit.models.measurement import LAWS, _travel
 
 VALUES = dict(k=8.0, f_kin=0.6, f_static_excess=0.4, slip_length=0.05, relax_frac=0.3,
               tau=0.15, relax_frac2=0.4, tau2=1.2, damping=5e-3, wear=0.05)
@@ -55,20 +55,3 @@ def test_force_and_jacobian_match_jacfwd_of_the_scan(law):
     f0, j0 = contact_jacobian(x, xdot[..., :0], dt, p, names)
     np.testing.assert_array_equal(f0, f)
     np.testing.assert_array_equal(j0, j[..., :len(names)])
-
-
-def test_the_measurement_models_jacobian_is_the_plain_simulations():
-    # predict's derivative (the loop, behind a custom JVP) against the plain scan's, whose
-    # derivative JAX takes itself (timing_derivatives=True), at every parameter.
-    model = MeasurementModel("relaxation2")
-    u = jnp.asarray(to_unconstrained(model, {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3,
-                                             "relax_frac": 0.2, "tau": 0.1, "delay": 0.01}))
-    t = jnp.arange(2500) / 1000.0
-    cmd, signs = jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
-    loop = jax.jit(jax.vmap(jax.jacfwd(lambda w: model.predict(w, t, cmd, signs, 1.0))))
-    scan = jax.jit(jax.vmap(jax.jacfwd(lambda w: model.predict(
-        w, t, cmd, signs, 1.0, timing_derivatives=True))))
-    us = jnp.stack([u, u + 0.05, u - 0.05])  # a batch, as the fits' pools call it
-    want = scan(us)
-    assert set(RIG) <= set(model.param_names) and np.abs(want).max(axis=(0, 1)).min() > 0
-    np.testing.assert_allclose(loop(us), want, rtol=1e-10, atol=1e-12 * np.abs(want).max())
