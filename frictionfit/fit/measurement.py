@@ -282,6 +282,10 @@ def fit_measurements(
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``).
+
+    The fits use every core by themselves; run several at once in processes, not threads
+    (their Jacobian is a host callback, and JAX's CPU callbacks can deadlock when two
+    threads of one process run such programs).
     """
     if rig not in ("recording", "session"):
         raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
