@@ -222,9 +222,11 @@ def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     @simulated.defjvp
     def _(primals, tangents):
         theta, t, commands, signs, stretch = primals
-        x = travel(theta[m:], t, commands, signs, stretch)
-        xdot = (jax.jacfwd(travel)(theta[m:], t, commands, signs, stretch)
-                if max(varied) >= m else jnp.zeros((t.size, 0), t.dtype))
+        if any(j >= m for j in varied):  # the drive's derivative in the rig, and the drive
+            xdot, x = jax.jacfwd(lambda rig: (travel(rig, t, commands, signs, stretch),) * 2,
+                                 has_aux=True)(theta[m:])
+        else:
+            x, xdot = travel(theta[m:], t, commands, signs, stretch), jnp.zeros((t.size, 0))
         shapes = (jax.ShapeDtypeStruct(t.shape, t.dtype),
                   jax.ShapeDtypeStruct((t.size, m + xdot.shape[1]), t.dtype))
         value, jac = jax.pure_callback(on_host, shapes, x, xdot, intervals(t), theta[:m],
