@@ -167,7 +167,7 @@ def contact_jacobian(x: np.ndarray, xdot: np.ndarray, dt: np.ndarray, params: np
     ``k`` and ``f_kin``). Returns ``force`` (..., n) and ``jac`` (..., n, m + r): the
     derivative in each parameter, then along each drive direction.
     """
-    lanes = np.array([names.index(nm) if nm in names else -1 for nm in LANES], np.int64)
+    lanes = _lanes(tuple(names))
     lead, (n, r), m = x.shape[:-1], xdot.shape[-2:], params.shape[-1]
     rows = math.prod(lead)
     flat = [np.ascontiguousarray(a, dtype=np.float64).reshape(rows, *a.shape[len(lead):])
@@ -180,6 +180,12 @@ def contact_jacobian(x: np.ndarray, xdot: np.ndarray, dt: np.ndarray, params: np
         list(_threads().map(lambda i: _batch(*(a[i] for a in flat), lanes, force[i], jac[i]),
                             [slice(p[0], p[-1] + 1) for p in parts]))
     return force.reshape(*lead, n), jac.reshape(*lead, n, m + r)
+
+
+@cache
+def _lanes(names: tuple[str, ...]) -> np.ndarray:
+    """Where each of :data:`LANES` sits in ``names`` (-1: absent)."""
+    return np.array([names.index(nm) if nm in names else -1 for nm in LANES], np.int64)
 
 
 @cache

@@ -25,7 +25,7 @@ speed turns the loading slope into ``k``, and the carried state is simulated.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from functools import lru_cache
+from functools import lru_cache, partial
 
 import equinox as eqx
 import jax
@@ -211,9 +211,7 @@ def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     if varied is None:
         return force
 
-    def on_host(x, xdot, dt, params):
-        return contact_jacobian(np.asarray(x), np.asarray(xdot), np.asarray(dt),
-                                np.asarray(params), names)
+    on_host = partial(contact_jacobian, names=names)
 
     @jax.custom_jvp
     def simulated(theta, t, commands, signs, stretch):
