@@ -85,11 +85,13 @@ def test_relabelled_branches_predict_the_same_force():
 
 def _one_motion():
     """A ``relaxation2`` model, a point in its unconstrained coordinates, and one out-back
-    motion's times and commands (s) and signs."""
+    motion's times and commands (s) and signs. The samples miss the drive's kinks (at a
+    kink JAX's derivative is the mean of both sides', the compiled loop's one side's)."""
     model = MeasurementModel("relaxation2")
     u = jnp.asarray(to_unconstrained(model, {"k": 8.0, "f_kin": 1.0, "f_static_excess": 0.3,
                                              "relax_frac": 0.2, "tau": 0.1, "delay": 0.01}))
-    return model, u, jnp.arange(2500) / 1000.0, jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
+    t = (jnp.arange(2500) + 0.37) / 1000.0
+    return model, u, t, jnp.array([0.05, 1.05]), jnp.array([1.0, -1.0])
 
 
 def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
@@ -100,8 +102,8 @@ def test_holding_the_rig_leaves_the_other_derivatives_unchanged():
     free = [j for j, n in enumerate(model.param_names) if n not in rig]
     assert np.abs(full[:, free]).max() > 0
     np.testing.assert_allclose(held[:, free], full[:, free], rtol=1e-10, atol=1e-12)
-    at_rig = [model.param_names.index(n) for n in rig]  # only the travel's part is left
-    assert not np.allclose(held[:, at_rig], full[:, at_rig])
+    at_rig = [model.param_names.index(n) for n in rig]  # a held parameter's derivative: 0
+    assert np.abs(full[:, at_rig]).max() > 0 and not np.asarray(held[:, at_rig]).any()
 
 
 def test_the_models_jacobian_through_the_compiled_loop_is_the_plain_simulations():

@@ -4,8 +4,9 @@
 body as a few dozen small kernels per time step, so ``jax.jacfwd`` of it is bound by their
 launches, not by arithmetic. This loop carries the state and its tangents in registers:
 the same force and Jacobian (to ~1e-14 relative, tested against ``jax.jacfwd``) 3-10x
-faster. It covers what the whole-measurement fits differentiate: a simulation from rest on
-a per-sample grid, tangents in the law's parameters and along the drive's. The loop
+faster. It covers what the whole-measurement fits differentiate: one channel of
+:class:`~frictionfit.models.MeasurementModel` (the rig's drive, the contact simulated from
+rest on a per-sample grid, the sensor), its Jacobian in every physical parameter. The loop
 releases the GIL; a batch's rows are shared by one host thread per core.
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from frictionfit._system import available_cores
 
-__all__ = ["LANES", "contact_jacobian"]
+__all__ = ["LANES", "channel_jacobian"]
 
 #: The law parameters the loop knows, in the order of its ``lanes`` argument.
 LANES = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
@@ -152,34 +153,116 @@ def _one(x, xdot, dt, p, lanes, force, jac):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _batch(x, xdot, dt, p, lanes, force, jac):
-    for b in range(x.shape[0]):
-        _one(x[b], xdot[b], dt[b], p[b], lanes, force[b], jac[b])
+def _trapezoid(u, accel):
+    """``trapezoid(u, accel)``'s position and velocity, and their derivatives in ``u`` and
+    ``accel``: ``(pos, vel, dpos_du, dvel_du, dpos_da, dvel_da)``."""
+    if u <= 0.0 or u >= 1.0:
+        return (0.0 if u <= 0.0 else 1.0), 0.0, 0.0, 0.0, 0.0, 0.0
+    top = 1.0 / (1.0 - accel)
+    rate = top / accel
+    drate = -(1.0 - 2.0 * accel) * rate * rate
+    if u < accel:
+        return 0.5 * rate * u * u, rate * u, rate * u, rate, 0.5 * u * u * drate, u * drate
+    if u <= 1.0 - accel:
+        return (top * (u - 0.5 * accel), top, top, 0.0,
+                top * top * (u - 0.5 * accel) - 0.5 * top, top * top)
+    w = 1.0 - u
+    return (1.0 - 0.5 * rate * w * w, rate * w, rate * w, -rate, -0.5 * w * w * drate,
+            w * drate)
 
 
-def contact_jacobian(x: np.ndarray, xdot: np.ndarray, dt: np.ndarray, params: np.ndarray,
-                     names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Force (N) of ``contact_force`` from rest, and its Jacobian, for a batch.
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _drive(rig, t, commands, signs, stretch, stroke, x, speed, dx, dspeed):
+    """The finger's travel (mm) and velocity (mm/s) at increasing times ``t``, written into
+    ``x`` and ``speed``, and their derivatives in ``rig = (delay, ramp, accel)`` into ``dx``
+    and ``dspeed`` (n, 3): ``MeasurementModel.finger``'s twin."""
+    delay, ramp, accel = rig[0], rig[1], rig[2]
+    last, done = -1, 0.0  # the last command given, and the strokes completed before it
+    for i in range(t.size):
+        while last + 1 < commands.size and commands[last + 1] <= t[i]:
+            last += 1
+            if last > 0:
+                done += signs[last - 1]
+        now = max(last, 0)
+        sign = signs[now] if last >= 0 else 0.0
+        duration = ramp * stretch[now]
+        u = (t[i] - commands[now] - delay) / duration
+        pos, vel, pos_u, vel_u, pos_a, vel_a = _trapezoid(u, accel)
+        x[i] = stroke * (done + sign * pos)
+        speed[i] = stroke / duration * sign * vel
+        dx[i, 0] = -stroke * sign * pos_u / duration
+        dx[i, 1] = -stroke * sign * pos_u * u / ramp
+        dx[i, 2] = stroke * sign * pos_a
+        dspeed[i, 0] = -stroke * sign * vel_u / duration**2
+        dspeed[i, 1] = -stroke * sign * (vel_u * u + vel) / (duration * ramp)
+        dspeed[i, 2] = stroke * sign * vel_a / duration
 
-    ``x`` (..., n): drive (mm); ``xdot`` (..., n, r): its derivative along ``r`` directions
-    (e.g. the rig's parameters); ``dt`` (..., n): each sample's interval (s); ``params``
-    (..., m): the law's values in the order of ``names`` (a subset of :data:`LANES` with
-    ``k`` and ``f_kin``). Returns ``force`` (..., n) and ``jac`` (..., n, m + r): the
-    derivative in each parameter, then along each drive direction.
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _channel(theta, t, commands, signs, stretch, direction, stroke, lanes, r, value, columns):
+    """One channel's value (n,) and Jacobian (n, p) in ``theta`` (sensor, law, drag, rig),
+    written into the outputs; ``r``: 3 to push the rig's tangents through the contact, 0 to
+    leave the rig's columns 0."""
+    n, p = t.size, theta.size
+    m = p - 7  # theta: offset, drift, leak, the law's m, drag, delay, ramp, accel
+    offset, drift, leak, drag = theta[0], theta[1], theta[2], theta[3 + m]
+    x, speed = np.empty(n), np.empty(n)
+    dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
+    _drive(theta[p - 3:], t, commands, signs, stretch, stroke, x, speed, dx, dspeed)
+    dt = np.empty(n)
+    dt[0] = t[1] - t[0]
+    for i in range(1, n):
+        dt[i] = t[i] - t[i - 1]
+    force, jac = np.empty(n), np.empty((n, m + r))
+    _one(x, dx[:, :r], dt, theta[3:3 + m], lanes, force, jac)
+    for i in range(n):
+        value[i] = (offset + drift * (t[i] - t[0]) + leak * x[i]
+                    + direction * (force[i] + drag * speed[i]))
+        out = columns[i]
+        out[0], out[1], out[2] = 1.0, t[i] - t[0], x[i]
+        for j in range(m):
+            out[3 + j] = direction * jac[i, j]
+        out[3 + m] = direction * speed[i]
+        for c in range(3):
+            out[p - 3 + c] = (leak * dx[i, c] + direction * (jac[i, m + c] + drag * dspeed[i, c])
+                              if r else 0.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, value, columns):
+    for b in range(t.shape[0]):
+        _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke, lanes,
+                 r, value[b], columns[b])
+
+
+def channel_jacobian(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
+                     signs: np.ndarray, stretch: np.ndarray, direction: np.ndarray, *,
+                     names: tuple[str, ...], stroke_mm: float, rig_columns: bool
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """One channel of ``MeasurementModel`` (N) and its Jacobian, for a batch.
+
+    ``theta`` (..., p): physical values in the model's ``param_names`` order (sensor, the
+    law ``names``, drag, rig); ``t`` (..., n): increasing times (s); ``commands``,
+    ``signs``, ``stretch`` (..., c): the movements; ``direction`` (...): the channel's sign.
+    Returns the channel (..., n) and its derivative in each of ``theta`` (..., n, p);
+    ``rig_columns=False``: the rig's columns left 0 (the drive's tangents not pushed
+    through the contact: a fit that holds the rig).
     """
     lanes = _lanes(tuple(names))
-    lead, (n, r), m = x.shape[:-1], xdot.shape[-2:], params.shape[-1]
+    lead, (n, p) = t.shape[:-1], (t.shape[-1], theta.shape[-1])
     rows = math.prod(lead)
-    flat = [np.ascontiguousarray(a, dtype=np.float64).reshape(rows, *a.shape[len(lead):])
-            for a in (x, xdot, dt, params)]
-    force, jac = np.empty((rows, n)), np.empty((rows, n, m + r))
+    args = [np.ascontiguousarray(a, dtype=np.float64).reshape(rows, *a.shape[len(lead):])
+            for a in (theta, t, commands, signs, stretch, direction)]
+    value, columns = np.empty((rows, n)), np.empty((rows, n, p))
+    r = 3 if rig_columns else 0
     parts = np.array_split(np.arange(rows), max(1, min(rows, available_cores())))
     if len(parts) == 1:
-        _batch(*flat, lanes, force, jac)
+        _batch(*args, stroke_mm, lanes, r, value, columns)
     else:  # each thread writes its own rows
-        list(_threads().map(lambda i: _batch(*(a[i] for a in flat), lanes, force[i], jac[i]),
-                            [slice(p[0], p[-1] + 1) for p in parts]))
-    return force.reshape(*lead, n), jac.reshape(*lead, n, m + r)
+        list(_threads().map(
+            lambda i: _batch(*(a[i] for a in args), stroke_mm, lanes, r, value[i], columns[i]),
+            [slice(q[0], q[-1] + 1) for q in parts]))
+    return value.reshape(*lead, n), columns.reshape(*lead, n, p)
 
 
 @cache

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models._forward import contact_jacobian
+from frictionfit.models._forward import channel_jacobian
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
@@ -61,7 +61,9 @@ def trapezoid(u, accel):
     """Position (0 to 1) and velocity (per unit ``u``) of a trapezoid-velocity move.
 
     ``u``: time since the move started over its duration; ``accel``: the share of the
-    duration spent accelerating (as long braking), in (0, 0.5).
+    duration spent accelerating (as long braking), in (0, 0.5). The whole fits' Jacobian
+    takes the drive from a compiled twin (:mod:`frictionfit.models._forward`): a change here
+    must be made there too.
     """
     v = jnp.clip(u, 0.0, 1.0)
     top = 1.0 / (1.0 - accel)
@@ -142,26 +144,24 @@ class MeasurementModel(eqx.Module, NamedParameters):
     def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = (),
                 stretch=None, timing_derivatives: bool = False):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
-        from rest at ``t[0]``. ``held``: names of parameters a fit holds fixed: the contact
-        simulation's Jacobian leaves them out (their derivative through it is taken as 0).
+        from rest at ``t[0]``. ``held``: names of parameters a fit holds fixed: their
+        derivative is taken as 0 (a held rig stays out of the contact's Jacobian).
         ``stretch``: as for :meth:`finger`. ``timing_derivatives``: differentiable in
         ``commands`` and ``stretch`` too (otherwise data), every input pushed through the
         simulation (slower; to find each movement's timing)."""
         v = self.physical(u)
-        stretch = _ones_if_none(stretch, commands)
-        x, speed = self.finger(u, t, commands, signs, stretch)
-        names = (*self.law_names, *RIG)
-        theta = jnp.stack([v[n] for n in names])
+        theta = jnp.stack([v[n] for n in self.param_names])
         varied = (None if timing_derivatives
-                  else tuple(j for j, n in enumerate(names) if n not in held))
-        force = _contact_fn(self.law, self.stroke_mm, varied)(theta, t, commands, signs, stretch)
-        force = force + v["drag"] * speed
-        return v["offset"] + v["drift"] * (t - t[0]) + v["leak"] * x + direction * force
+                  else tuple(j for j, n in enumerate(self.param_names) if n not in held))
+        return _channel_fn(self.law, self.stroke_mm, varied)(
+            theta, t, commands, signs, _ones_if_none(stretch, commands), direction)
 
 
-#: The rig's parameters (the motor's timing), in the order the contact's force takes them
-#: after the law's.
+#: The rig's parameters (the motor's timing), the last of :attr:`MeasurementModel.param_names`.
 RIG = ("delay", "ramp", "accel")
+
+#: The sensor's parameters, the first of :attr:`MeasurementModel.param_names`.
+SENSOR = ("offset", "drift", "leak")
 
 
 def _ones_if_none(stretch, commands):
@@ -172,7 +172,8 @@ def _ones_if_none(stretch, commands):
 def _travel(stroke_mm, delay, ramp, accel, t, commands, signs, stretch):
     """Finger travel (mm) and velocity (mm/s): :meth:`MeasurementModel.finger` in physical
     values."""
-    last = jnp.searchsorted(commands, t, side="right") - 1  # -1: before the first
+    # -1: before the first; comparing with every command is 5x faster than the default
+    last = jnp.searchsorted(commands, t, side="right", method="compare_all") - 1
     now = jnp.maximum(last, 0)
     sign = jnp.where(last >= 0, signs[now], 0.0)
     done = jnp.concatenate([jnp.zeros(1, dtype=signs.dtype), jnp.cumsum(signs)])[now]
@@ -181,56 +182,52 @@ def _travel(stroke_mm, delay, ramp, accel, t, commands, signs, stretch):
     return stroke_mm * (done + sign * pos), stroke_mm / duration * sign * vel
 
 
-@lru_cache(maxsize=32)
-def _contact_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
-    """``force(theta, t, commands, signs, stretch)`` (N): the contact law driven by the rig,
-    ``theta`` the law's parameters then :data:`RIG` (physical).
+def _intervals(t):
+    """Each sample's interval since the previous one (s), the first as the second."""
+    return jnp.diff(t, prepend=2.0 * t[0] - t[1])
 
-    Its derivative is the Jacobian in the ``varied`` entries of ``theta`` times their
-    tangent, computed by the compiled loop of :mod:`frictionfit.models._forward` (the
-    scan's ``jacfwd`` is bound by XLA's kernel launches): a Jacobian of the whole model
-    (``jacfwd``) then pushes only these parameters through the sequential contact
-    simulation, not the sensor's and the drag's, which enter after it, nor the held ones
-    (a held rig leaves the drive's tangents out). ``t``, ``commands``, ``signs`` and
-    ``stretch`` are data: never differentiated. ``varied=None``: the plain simulation,
-    differentiable in every input.
+
+@lru_cache(maxsize=32)
+def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
+    """``channel(theta, t, commands, signs, stretch, direction)`` (N): the channel with
+    ``theta`` the physical parameters in :attr:`MeasurementModel.param_names`' order.
+
+    Its derivative is the channel's Jacobian in the ``varied`` entries of ``theta`` times
+    their tangent, the Jacobian from the compiled loop of :mod:`frictionfit.models._forward`
+    (the scan's ``jacfwd`` is bound by XLA's kernel launches): a Jacobian of the whole
+    residual (``jacfwd``) then evaluates the drive and the simulation once, whatever its
+    number of parameters, and a held rig leaves the drive's tangents out of the contact.
+    ``t``, ``commands``, ``signs``, ``stretch`` and ``direction`` are data: never
+    differentiated. ``varied=None``: the plain channel, differentiable in every input.
     """
     names = LAWS[law]
-    m = len(names)
+    m, s = len(names), len(SENSOR)
 
-    def travel(rig, t, commands, signs, stretch):
-        return _travel(stroke_mm, *rig, t, commands, signs, stretch)[0]
-
-    def intervals(t):
-        return jnp.diff(t, prepend=2.0 * t[0] - t[1])
-
-    def force(theta, t, commands, signs, stretch):
-        x = travel(theta[m:], t, commands, signs, stretch)
-        return contact_force(x, intervals(t), **dict(zip(names, theta[:m], strict=True)))
+    def channel(theta, t, commands, signs, stretch, direction):
+        offset, drift, leak = theta[:s]
+        x, speed = _travel(stroke_mm, *theta[-len(RIG):], t, commands, signs, stretch)
+        force = contact_force(x, _intervals(t), **dict(zip(names, theta[s:s + m], strict=True)))
+        force = force + theta[s + m] * speed
+        return offset + drift * (t - t[0]) + leak * x + direction * force
 
     if varied is None:
-        return force
+        return channel
 
-    on_host = partial(contact_jacobian, names=names)
+    on_host = partial(channel_jacobian, names=names, stroke_mm=stroke_mm,
+                      rig_columns=any(j >= s + m + 1 for j in varied))
+    mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
 
     @jax.custom_jvp
-    def simulated(theta, t, commands, signs, stretch):
-        return force(theta, t, commands, signs, stretch)
+    def simulated(theta, t, commands, signs, stretch, direction):
+        return channel(theta, t, commands, signs, stretch, direction)
 
     @simulated.defjvp
     def _(primals, tangents):
-        theta, t, commands, signs, stretch = primals
-        if any(j >= m for j in varied):  # the drive's derivative in the rig, and the drive
-            xdot, x = jax.jacfwd(lambda rig: (travel(rig, t, commands, signs, stretch),) * 2,
-                                 has_aux=True)(theta[m:])
-        else:
-            x, xdot = travel(theta[m:], t, commands, signs, stretch), jnp.zeros((t.size, 0))
-        shapes = (jax.ShapeDtypeStruct(t.shape, t.dtype),
-                  jax.ShapeDtypeStruct((t.size, m + xdot.shape[1]), t.dtype))
-        value, jac = jax.pure_callback(on_host, shapes, x, xdot, intervals(t), theta[:m],
-                                       vmap_method="broadcast_all")
-        idx = jnp.asarray(varied, dtype=int)
-        return value, jac[:, idx] @ tangents[0][idx]
+        shapes = (jax.ShapeDtypeStruct(primals[1].shape, primals[1].dtype),
+                  jax.ShapeDtypeStruct((*primals[1].shape, primals[0].size), primals[1].dtype))
+        value, columns = jax.pure_callback(on_host, shapes, *primals,
+                                           vmap_method="broadcast_all")
+        return value, columns @ jnp.where(mask, tangents[0], 0.0)
 
     return simulated
 
