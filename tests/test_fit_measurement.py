@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from frictionfit.cli import app
 from frictionfit.errors import Status
+from frictionfit.fit._numerics import normal_equations
 from frictionfit.fit.measurement import (
     PROFILE_MIN_DROP,
     _at_optimum,
@@ -19,6 +20,8 @@ from frictionfit.fit.measurement import (
     _ridges_checked,
     fit_measurements,
     measurement_data,
+    normal_fn,
+    residual_fn,
     stack_items,
 )
 from frictionfit.models import PARAMS, MeasurementModel
@@ -118,6 +121,29 @@ def test_the_models_jacobian_through_the_compiled_loop_is_the_plain_simulations(
     want = scan(us)
     assert np.abs(want).max(axis=(0, 1)).min() > 0
     np.testing.assert_allclose(loop(us), want, rtol=1e-10, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.parametrize(("law", "held"), [("relaxation2", ()), ("no_peak2", ("delay", "ramp",
+                                                                            "accel")),
+                                           ("relaxation2", ("offset", "tau2"))])
+def test_the_fits_normal_equations_are_those_of_the_residuals_jacobian(simulated, law, held):
+    # the solver's normal equations, summed in the compiled loop, against J^T J and J^T r
+    # of the residual's forward-mode Jacobian (priors included), a padded batch, held
+    # parameters (a held rig leaves the contact's rig lanes out)
+    model = MeasurementModel(law)
+    items = [measurement_data(rec, ch) for rec in simulated[:2] for ch in ("index_x", "thumb_x")]
+    items[1] = dataclasses.replace(items[1], t=items[1].t[:-50], y=items[1].y[:-50],
+                                   weight=items[1].weight[:-50])
+    u0 = np.stack([to_unconstrained(model, d.guess) for d in items])
+    data = stack_items(items, u0)
+    free = tuple(j for j, n in enumerate(model.param_names) if n not in held)
+    residual = residual_fn(model, free)
+    want = jax.vmap(lambda u, d: normal_equations(lambda z: residual(z, d), u))(
+        u0[:, list(free)], data)
+    got = jax.vmap(normal_fn(model, free))(u0[:, list(free)], data)
+    assert np.all(np.diagonal(want[1], axis1=1, axis2=2) > 0)  # every free parameter acts
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-10, atol=1e-12 * np.abs(w).max())
 
 
 @pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])

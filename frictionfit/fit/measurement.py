@@ -46,7 +46,7 @@ from frictionfit.recording import Recording
 from frictionfit.segmentation import checked_grid, moving_average
 
 __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
-           "profile_drops", "residual_fn", "stack_items"]
+           "normal_fn", "profile_drops", "residual_fn", "stack_items"]
 
 
 #: Seconds after each ``move`` command sampled finely (``decimate``): motor delay, the
@@ -224,6 +224,27 @@ def residual_fn(model: MeasurementModel, free: tuple[int, ...]):
         return jnp.concatenate([weight * (pred - y), noise * model.prior_residuals(u)])
 
     return residual
+
+
+@lru_cache(maxsize=16)
+def normal_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """``normal(u_free, data) -> (|r|^2 / 2, J^T J, J^T r)`` of :func:`residual_fn`'s
+    residual: the data rows' part from :meth:`MeasurementModel.normal_equations` (on the
+    host, no ``(n, p)`` Jacobian in JAX), the priors' by ``jacfwd``."""
+    free_idx = jnp.asarray(free)
+
+    def normal(u_free, data):
+        y, weight, t, commands, signs, stretch, direction, noise, base = data
+
+        def priors(w):
+            return noise * model.prior_residuals(base.at[free_idx].set(w))
+
+        cost, jtj, jtr = model.normal_equations(base.at[free_idx].set(u_free), t, commands,
+                                                signs, direction, y, weight, free, stretch)
+        rp, jp = priors(u_free), jax.jacfwd(priors)(u_free)
+        return cost + 0.5 * rp @ rp, jtj + jp.T @ jp, jtr + jp.T @ rp
+
+    return normal
 
 
 def stack_items(items: Sequence[MeasurementData], base: np.ndarray):
@@ -561,7 +582,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     residual = residual_fn(model, free)
     # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
-    solver = BatchedLevenbergMarquardt(**{field[k]: v for k, v in (tolerances or {}).items()})
+    solver = BatchedLevenbergMarquardt(normal=normal_fn(model, free),
+                                       **{field[k]: v for k, v in (tolerances or {}).items()})
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:

@@ -7,7 +7,8 @@ least-squares solver, in refilled pools of slots (:mod:`frictionfit.fit._optx`).
 
 Each step costs one forward-mode Jacobian (``jax.jacfwd``: few parameters, thousands
 of residuals), from which only the ``p x p`` normal matrix ``J^T J`` and gradient
-``J^T r`` are kept (``J^T J`` at the solution is in ``stats["jtj"]``); the damped
+``J^T r`` are kept (``J^T J`` at the solution is in ``stats["jtj"]``; a problem may
+supply them itself, ``normal``); the damped
 normal equations, with Marquardt scaling (running max of ``diag(J^T J)``, as in
 MINPACK), are solved with ``lineax.Cholesky``.
 
@@ -131,6 +132,10 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         Damping after the first evaluation.
     norm : callable
         Kept for optimistix's interface; the tests above do not use it.
+    normal : callable, optional
+        ``normal(y, args) -> (|r|^2 / 2, J^T J, J^T r)``: the problem's own normal
+        equations in place of a forward-mode Jacobian of ``fn`` (a model that forms them
+        faster; ``fn``'s aux is then taken from ``fn`` itself).
 
     Examples
     --------
@@ -147,6 +152,7 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     ftol: float = 1e-6
     lambda0: float = 1e-3
     norm: Callable = optx.max_norm
+    normal: Callable | None = None
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         if jnp.ndim(y) != 1:
@@ -161,7 +167,10 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     def step(self, fn, y, args, options, state, tags):
         s, _ = state
-        evaluated, aux = normal_equations(lambda u: fn(u, args), s.cand, has_aux=True)
+        if self.normal is None:
+            evaluated, aux = normal_equations(lambda u: fn(u, args), s.cand, has_aux=True)
+        else:
+            evaluated, aux = self.normal(s.cand, args), fn(s.cand, args)[1]
         s = _iteration(s, evaluated, ftol=self.ftol, xtol=self.rtol, gtol=self.atol,
                        lambda0=self.lambda0)
         return s.u, (s, aux), aux

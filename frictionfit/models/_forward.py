@@ -21,7 +21,7 @@ import numpy as np
 
 from frictionfit._system import available_cores
 
-__all__ = ["LANES", "channel_jacobian"]
+__all__ = ["LANES", "channel_jacobian", "weighted_normal_equations"]
 
 #: The law parameters the loop knows, in the order of its ``lanes`` argument.
 LANES = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
@@ -235,6 +235,51 @@ def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, valu
                  r, value[b], columns[b])
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _batch_normal(theta, t, commands, signs, stretch, direction, y, weight, stroke, lanes, r,
+                  cost, ctc, ctr):
+    n, p = t.shape[1], theta.shape[1]
+    value, columns, wc = np.empty(n), np.empty((n, p)), np.empty(p)
+    for b in range(t.shape[0]):
+        _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke, lanes,
+                 r, value, columns)
+        acc, grad = ctc[b], ctr[b]
+        acc[:] = 0.0
+        grad[:] = 0.0
+        total = 0.0
+        for i in range(n):
+            w = weight[b, i]
+            res = w * (value[i] - y[b, i])
+            total += res * res
+            for j in range(p):
+                wc[j] = w * columns[i, j]
+            for j in range(p):
+                grad[j] += wc[j] * res
+                for k in range(p):
+                    acc[j, k] += wc[j] * wc[k]
+        cost[b] = 0.5 * total
+
+
+def _on_rows(kernel, inputs: list[np.ndarray], consts: tuple, outputs: list[np.ndarray]):
+    """``kernel(*inputs, *consts, *outputs)`` over a batch's rows (the leading axis of
+    every input and output), shared by one host thread per core, each writing its own."""
+    rows = inputs[0].shape[0]
+    parts = np.array_split(np.arange(rows), max(1, min(rows, available_cores())))
+    if len(parts) == 1:
+        kernel(*inputs, *consts, *outputs)
+        return
+    list(_threads().map(
+        lambda i: kernel(*(a[i] for a in inputs), *consts, *(o[i] for o in outputs)),
+        [slice(q[0], q[-1] + 1) for q in parts]))
+
+
+def _flat(arrays, lead: tuple[int, ...]) -> list[np.ndarray]:
+    """Each array as float64 rows: its ``lead`` axes flattened into one."""
+    rows = math.prod(lead)
+    return [np.ascontiguousarray(a, dtype=np.float64).reshape(rows, *np.shape(a)[len(lead):])
+            for a in arrays]
+
+
 def channel_jacobian(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
                      signs: np.ndarray, stretch: np.ndarray, direction: np.ndarray, *,
                      names: tuple[str, ...], stroke_mm: float, rig_columns: bool
@@ -248,21 +293,31 @@ def channel_jacobian(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
     ``rig_columns=False``: the rig's columns left 0 (the drive's tangents not pushed
     through the contact: a fit that holds the rig).
     """
-    lanes = _lanes(tuple(names))
     lead, (n, p) = t.shape[:-1], (t.shape[-1], theta.shape[-1])
-    rows = math.prod(lead)
-    args = [np.ascontiguousarray(a, dtype=np.float64).reshape(rows, *a.shape[len(lead):])
-            for a in (theta, t, commands, signs, stretch, direction)]
-    value, columns = np.empty((rows, n)), np.empty((rows, n, p))
-    r = 3 if rig_columns else 0
-    parts = np.array_split(np.arange(rows), max(1, min(rows, available_cores())))
-    if len(parts) == 1:
-        _batch(*args, stroke_mm, lanes, r, value, columns)
-    else:  # each thread writes its own rows
-        list(_threads().map(
-            lambda i: _batch(*(a[i] for a in args), stroke_mm, lanes, r, value[i], columns[i]),
-            [slice(q[0], q[-1] + 1) for q in parts]))
+    inputs = _flat((theta, t, commands, signs, stretch, direction), lead)
+    value, columns = np.empty((len(inputs[0]), n)), np.empty((len(inputs[0]), n, p))
+    _on_rows(_batch, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
+             [value, columns])
     return value.reshape(*lead, n), columns.reshape(*lead, n, p)
+
+
+def weighted_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
+                              signs: np.ndarray, stretch: np.ndarray, direction: np.ndarray,
+                              y: np.ndarray, weight: np.ndarray, *, names: tuple[str, ...],
+                              stroke_mm: float, rig_columns: bool
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(|r|^2 / 2, C^T C, C^T r)`` of the weighted residual ``r = weight (channel - y)``
+    and its Jacobian ``C`` in ``theta``, for a batch (arguments as for
+    :func:`channel_jacobian`; ``y``, ``weight`` (..., n)): the products summed sample by
+    sample as the loop goes, no ``(n, p)`` Jacobian kept. Shapes ``(...)``, ``(..., p,
+    p)``, ``(..., p)``."""
+    lead, p = t.shape[:-1], theta.shape[-1]
+    inputs = _flat((theta, t, commands, signs, stretch, direction, y, weight), lead)
+    rows = len(inputs[0])
+    cost, ctc, ctr = np.empty(rows), np.empty((rows, p, p)), np.empty((rows, p))
+    _on_rows(_batch_normal, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
+             [cost, ctc, ctr])
+    return cost.reshape(lead), ctc.reshape(*lead, p, p), ctr.reshape(*lead, p)
 
 
 @cache

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models._forward import channel_jacobian
+from frictionfit.models._forward import channel_jacobian, weighted_normal_equations
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
@@ -155,6 +155,30 @@ class MeasurementModel(eqx.Module, NamedParameters):
                   else tuple(j for j, n in enumerate(self.param_names) if n not in held))
         return _channel_fn(self.law, self.stroke_mm, varied)(
             theta, t, commands, signs, _ones_if_none(stretch, commands), direction)
+
+
+    def normal_equations(self, u, t, commands, signs, direction, y, weight,
+                         free: tuple[int, ...], stretch=None):
+        """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict -
+        y)`` in the ``free`` entries of unconstrained ``u``: :meth:`predict`'s Jacobian
+        taken whole by the compiled loop, its products on the host, so no ``(n, p)``
+        Jacobian passes through JAX (the whole fits' step). Not differentiable."""
+        def theta_of(w):  # the physical values in param_names' order
+            v = self.physical(w)
+            return jnp.stack([v[n] for n in self.param_names])
+
+        theta = theta_of(u)
+        d_theta = jax.jacfwd(theta_of)(u)[:, jnp.asarray(free)]  # du[free] -> dtheta
+        p = theta.size
+        rig = any(self.param_names[j] in RIG for j in free)
+        shapes = (jax.ShapeDtypeStruct((), t.dtype), jax.ShapeDtypeStruct((p, p), t.dtype),
+                  jax.ShapeDtypeStruct((p,), t.dtype))
+        cost, ctc, ctr = jax.pure_callback(
+            partial(weighted_normal_equations, names=self.law_names, stroke_mm=self.stroke_mm,
+                    rig_columns=rig),
+            shapes, theta, t, commands, signs, _ones_if_none(stretch, commands), direction, y,
+            weight, vmap_method="broadcast_all")
+        return cost, d_theta.T @ ctc @ d_theta, d_theta.T @ ctr
 
 
 #: The rig's parameters (the motor's timing), the last of :attr:`MeasurementModel.param_names`.
