@@ -730,12 +730,8 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray
 @lru_cache(maxsize=16)
 def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data) -> J^T J`` (with the prior rows) of one item."""
-    residual = residual_fn(model, free)
-
-    def one(u_free, data):
-        return normal_equations(lambda w: residual(w, data), u_free)[1]
-
-    return jax.jit(one)
+    normal = normal_fn(model, free)
+    return jax.jit(lambda u_free, data: normal(u_free, data)[1])
 
 
 @lru_cache(maxsize=16)

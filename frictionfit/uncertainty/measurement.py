@@ -41,10 +41,11 @@ import numpy as np
 
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
-from frictionfit.fit._numerics import map_chunks, normal_equations
+from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit._stats import VANISHING
 from frictionfit.fit.measurement import (
     MeasurementData,
+    normal_fn,
     profile_drops,
     residual_fn,
     stack_items,
@@ -268,10 +269,10 @@ def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data, s2, bounded) -> (log density, gradient, Gauss-Newton
     Hessian)`` of one item's density in ``u`` (:func:`_unconstrained_density_fn`), the
     logistic Jacobian's terms exact."""
-    residual = residual_fn(model, free)
+    normal = normal_fn(model, free)
 
     def one(u, data, s2, bounded):
-        cost, jtj, jtr = normal_equations(lambda w: residual(w, data), u)
+        cost, jtj, jtr = normal(u, data)
         sig = jax.nn.sigmoid(u)
         lp = -cost / s2 + jnp.sum(jnp.where(bounded, log_logistic(u), 0.0))
         grad = -jtr / s2 + jnp.where(bounded, 1.0 - 2.0 * sig, 0.0)
