@@ -14,7 +14,7 @@ FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted
                  "texture), handcrafted, fftbins, spectral, raw, gesture, touch, shortcut; a "
                  "comma list concatenates them. Default by dataset kind: recordings "
                  "physical,fitted (the most accurate and best calibrated; a fit per "
-                 "recording, about 0.2 s each on 2 cores once compiled), fabricslide "
+                 "recording, about 0.15 s each on 2 cores once compiled), fabricslide "
                  "sliding, gesture gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
