@@ -156,7 +156,6 @@ class MeasurementModel(eqx.Module, NamedParameters):
         return _channel_fn(self.law, self.stroke_mm, varied)(
             theta, t, commands, signs, _ones_if_none(stretch, commands), direction)
 
-
     def normal_equations(self, u, t, commands, signs, direction, y, weight,
                          free: tuple[int, ...], stretch=None):
         """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict -
