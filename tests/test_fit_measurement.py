@@ -146,6 +146,32 @@ def test_the_fits_normal_equations_are_those_of_the_residuals_jacobian(simulated
         np.testing.assert_allclose(g, w, rtol=1e-10, atol=1e-12 * np.abs(w).max())
 
 
+@pytest.mark.parametrize("law", ["no_peak2", "relaxation2"])
+def test_the_movement_timings_normal_equations_are_those_of_jax(simulated, law):
+    # the compiled loop's normal equations in every movement's onset shift and log
+    # duration factor, against jacfwd of the plain scan (timing_derivatives=True), at a
+    # jittered timing
+    model = MeasurementModel(law)
+    d = measurement_data(simulated[1], "index_x")
+    u = jnp.asarray(to_unconstrained(model, d.guess))
+    rng = np.random.default_rng(3)
+    cmd = d.commands + rng.normal(0.0, 0.002, d.commands.size)
+    stretch = np.exp(rng.normal(0.0, 0.03, d.commands.size))
+    m = cmd.size
+
+    def resid(z):
+        pred = model.predict(u, d.t, cmd + z[:m], d.signs, d.direction,
+                             stretch=stretch * jnp.exp(z[m:]), timing_derivatives=True)
+        return d.weight * (pred - d.y)
+
+    want = normal_equations(resid, jnp.zeros(2 * m))
+    got = model.timing_normal_equations(u, d.t, cmd, d.signs, stretch, d.direction, d.y,
+                                        d.weight)
+    assert np.all(np.diagonal(want[1])[np.tile(d.signs != 0, 2)] > 0)  # each timing acts
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-10, atol=1e-12 * np.abs(w).max())
+
+
 @pytest.mark.parametrize(("scale", "lifted"), [(4.0, True), (0.01, False)])
 def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gaussian(
         simulated, scale, lifted):

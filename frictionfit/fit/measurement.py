@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
-from frictionfit.fit._numerics import map_chunks, normal_equations, scaled_condition
+from frictionfit.fit._numerics import map_chunks, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
 from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of
@@ -458,24 +458,6 @@ def _window_costs_fn(model: MeasurementModel):
     return jax.jit(costs)
 
 
-@lru_cache(maxsize=8)
-def _timing_normal_fn(model: MeasurementModel):
-    """Jitted ``(u, y, weight, t, commands, signs, stretch, direction) -> (cost, J^T J, J^T
-    r)``: the weighted least-squares cost (data rows) and its normal equations in every
-    movement's onset shift (s) then log duration factor, at zero."""
-    def normal(u, y, weight, t, commands, signs, stretch, direction):
-        m = commands.shape[0]
-
-        def resid(z):
-            pred = model.predict(u, t, commands + z[:m], signs, direction,
-                                 stretch=stretch * jnp.exp(z[m:]), timing_derivatives=True)
-            return weight * (pred - y)
-
-        return normal_equations(resid, jnp.zeros(2 * m))
-
-    return jax.jit(normal)
-
-
 def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
                      ) -> tuple[np.ndarray, np.ndarray]:
     """One item's command times and duration factors: the onset shift in :data:`SHIFTS_S`
@@ -489,11 +471,10 @@ def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
     seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
     commands = d.commands + np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
     stretch = np.ones_like(commands)
-    normal = _timing_normal_fn(model)
 
     def at(commands, stretch):  # (cost, J^T J, J^T r) at this timing
-        return [np.asarray(v) for v in normal(u, d.y, d.weight, d.t, commands, d.signs,
-                                              stretch, d.direction)]
+        return model.timing_normal_equations(u, d.t, commands, d.signs, stretch, d.direction,
+                                             d.y, d.weight)
 
     m, lam = commands.size, 1e-3
     limit = np.repeat(TIMING_STEP_MAX, m)

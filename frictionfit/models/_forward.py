@@ -21,7 +21,7 @@ import numpy as np
 
 from frictionfit._system import available_cores
 
-__all__ = ["LANES", "channel_jacobian", "weighted_normal_equations"]
+__all__ = ["LANES", "channel_jacobian", "timing_normal_equations", "weighted_normal_equations"]
 
 #: The law parameters the loop knows, in the order of its ``lanes`` argument.
 LANES = ("k", "f_kin", "f_static_excess", "slip_length", "relax_frac", "tau",
@@ -258,6 +258,68 @@ def _batch_normal(theta, t, commands, signs, stretch, direction, y, weight, stro
                 for k in range(p):
                     acc[j, k] += wc[j] * wc[k]
         cost[b] = 0.5 * total
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _timing_normal(theta, t, commands, signs, stretch, direction, y, weight, stroke, lanes,
+                   ctc, ctr):
+    """One channel's weighted cost, and ``ctc``, ``ctr`` in each movement's onset shift
+    then log duration factor (written into the outputs)."""
+    n, p, c = t.size, theta.size, commands.size
+    m = p - 7
+    offset, drift, leak, drag, ramp = theta[0], theta[1], theta[2], theta[3 + m], theta[p - 2]
+    x, speed = np.empty(n), np.empty(n)
+    dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
+    _drive(theta[p - 3:], t, commands, signs, stretch, stroke, x, speed, dx, dspeed)
+    # a shift of the movement under way moves its onset as the delay does; a log duration
+    # factor stretches it as ramp d/dramp does
+    xdot, sdot = np.zeros((n, 2 * c)), np.zeros((n, 2 * c))
+    last = -1
+    for i in range(n):
+        while last + 1 < c and commands[last + 1] <= t[i]:
+            last += 1
+        if last >= 0:
+            xdot[i, last], sdot[i, last] = dx[i, 0], dspeed[i, 0]
+            xdot[i, c + last], sdot[i, c + last] = ramp * dx[i, 1], ramp * dspeed[i, 1]
+    dt = np.empty(n)
+    dt[0] = t[1] - t[0]
+    for i in range(1, n):
+        dt[i] = t[i] - t[i - 1]
+    force, jac = np.empty(n), np.empty((n, m + 2 * c))
+    _one(x, xdot, dt, theta[3:3 + m], lanes, force, jac)
+    col = np.empty(2 * c)
+    ctc[:] = 0.0
+    ctr[:] = 0.0
+    total = 0.0
+    for i in range(n):
+        w = weight[i]
+        res = w * (offset + drift * (t[i] - t[0]) + leak * x[i]
+                   + direction * (force[i] + drag * speed[i]) - y[i])
+        total += res * res
+        for j in range(2 * c):
+            col[j] = w * (leak * xdot[i, j] + direction * (jac[i, m + j] + drag * sdot[i, j]))
+        for j in range(2 * c):
+            ctr[j] += col[j] * res
+            for k in range(2 * c):
+                ctc[j, k] += col[j] * col[k]
+    return 0.5 * total
+
+
+def timing_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
+                            signs: np.ndarray, stretch: np.ndarray, direction: float,
+                            y: np.ndarray, weight: np.ndarray, *, names: tuple[str, ...],
+                            stroke_mm: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(|r|^2 / 2, J^T J, J^T r)`` of one channel's weighted residual ``r = weight
+    (channel - y)`` in each movement's onset shift (s) then log duration factor, at zero
+    (arguments as for :func:`channel_jacobian`, one channel): the movement timing's step."""
+    theta, t, commands, signs, stretch, y, weight = (
+        np.ascontiguousarray(a, dtype=np.float64)
+        for a in (theta, t, commands, signs, stretch, y, weight))
+    q = 2 * commands.size
+    ctc, ctr = np.empty((q, q)), np.empty(q)
+    cost = _timing_normal(theta, t, commands, signs, stretch, float(direction), y, weight,
+                          stroke_mm, _lanes(tuple(names)), ctc, ctr)
+    return cost, ctc, ctr
 
 
 def _on_rows(kernel, inputs: list[np.ndarray], consts: tuple, outputs: list[np.ndarray]):

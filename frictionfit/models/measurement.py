@@ -32,7 +32,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models._forward import channel_jacobian, weighted_normal_equations
+from frictionfit.models._forward import (
+    channel_jacobian,
+    timing_normal_equations,
+    weighted_normal_equations,
+)
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.stick_slip import contact_force
 
@@ -178,6 +182,17 @@ class MeasurementModel(eqx.Module, NamedParameters):
             shapes, theta, t, commands, signs, _ones_if_none(stretch, commands), direction, y,
             weight, vmap_method="broadcast_all")
         return cost, d_theta.T @ ctc @ d_theta, d_theta.T @ ctr
+
+
+    def timing_normal_equations(self, u, t, commands, signs, stretch, direction, y, weight
+                                ) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict - y)``
+        of one channel in each movement's onset shift (s) then log duration factor, at zero
+        (NumPy in and out, by the compiled loop; the movement timing's steps)."""
+        v = self.physical(np.asarray(u, dtype=np.float64))  # NumPy: no JAX dispatch
+        theta = np.array([v[n] for n in self.param_names])
+        return timing_normal_equations(theta, t, commands, signs, stretch, direction, y, weight,
+                                       names=self.law_names, stroke_mm=self.stroke_mm)
 
 
 #: The rig's parameters (the motor's timing), the last of :attr:`MeasurementModel.param_names`.
