@@ -199,6 +199,16 @@ def _drive(rig, t, commands, signs, stretch, stroke, x, speed, dx, dspeed):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _intervals(t):
+    """Each sample's interval since the previous one (s), the first as the second."""
+    dt = np.empty(t.size)
+    dt[0] = t[1] - t[0]
+    for i in range(1, t.size):
+        dt[i] = t[i] - t[i - 1]
+    return dt
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _channel(theta, t, commands, signs, stretch, direction, stroke, lanes, r, value, columns):
     """One channel's value (n,) and Jacobian (n, p) in ``theta`` (sensor, law, drag, rig),
     written into the outputs; ``r``: 3 to push the rig's tangents through the contact, 0 to
@@ -209,10 +219,7 @@ def _channel(theta, t, commands, signs, stretch, direction, stroke, lanes, r, va
     x, speed = np.empty(n), np.empty(n)
     dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
     _drive(theta[p - 3:], t, commands, signs, stretch, stroke, x, speed, dx, dspeed)
-    dt = np.empty(n)
-    dt[0] = t[1] - t[0]
-    for i in range(1, n):
-        dt[i] = t[i] - t[i - 1]
+    dt = _intervals(t)
     force, jac = np.empty(n), np.empty((n, m + r))
     _one(x, dx[:, :r], dt, theta[3:3 + m], lanes, force, jac)
     for i in range(n):
@@ -281,10 +288,7 @@ def _timing_normal(theta, t, commands, signs, stretch, direction, y, weight, str
         if last >= 0:
             xdot[i, last], sdot[i, last] = dx[i, 0], dspeed[i, 0]
             xdot[i, c + last], sdot[i, c + last] = ramp * dx[i, 1], ramp * dspeed[i, 1]
-    dt = np.empty(n)
-    dt[0] = t[1] - t[0]
-    for i in range(1, n):
-        dt[i] = t[i] - t[i - 1]
+    dt = _intervals(t)
     force, jac = np.empty(n), np.empty((n, m + 2 * c))
     _one(x, xdot, dt, theta[3:3 + m], lanes, force, jac)
     col = np.empty(2 * c)
