@@ -145,6 +145,13 @@ class MeasurementModel(eqx.Module, NamedParameters):
         return _travel(self.stroke_mm, v["delay"], v["ramp"], v["accel"], t, commands, signs,
                        _ones_if_none(stretch, commands))
 
+    def _theta(self, u):
+        """The physical values of unconstrained ``u`` as one vector in :attr:`param_names`'
+        order (NumPy for a NumPy ``u``)."""
+        v = self.physical(u)
+        xp = np if isinstance(u, np.ndarray) else jnp
+        return xp.stack([v[n] for n in self.param_names])
+
     def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = (),
                 stretch=None, timing_derivatives: bool = False):
         """Predicted channel (N) at increasing times ``t`` (s, uniform or not), simulated
@@ -153,8 +160,7 @@ class MeasurementModel(eqx.Module, NamedParameters):
         ``stretch``: as for :meth:`finger`. ``timing_derivatives``: differentiable in
         ``commands`` and ``stretch`` too (otherwise data), every input pushed through the
         simulation (slower; to find each movement's timing)."""
-        v = self.physical(u)
-        theta = jnp.stack([v[n] for n in self.param_names])
+        theta = self._theta(u)
         varied = (None if timing_derivatives
                   else tuple(j for j, n in enumerate(self.param_names) if n not in held))
         return _channel_fn(self.law, self.stroke_mm, varied)(
@@ -166,12 +172,8 @@ class MeasurementModel(eqx.Module, NamedParameters):
         y)`` in the ``free`` entries of unconstrained ``u``: :meth:`predict`'s Jacobian
         taken whole by the compiled loop, its products on the host, so no ``(n, p)``
         Jacobian passes through JAX (the whole fits' step). Not differentiable."""
-        def theta_of(w):  # the physical values in param_names' order
-            v = self.physical(w)
-            return jnp.stack([v[n] for n in self.param_names])
-
-        theta = theta_of(u)
-        d_theta = jax.jacfwd(theta_of)(u)[:, jnp.asarray(free)]  # du[free] -> dtheta
+        theta = self._theta(u)
+        d_theta = jax.jacfwd(self._theta)(u)[:, jnp.asarray(free)]  # du[free] -> dtheta
         p = theta.size
         rig = any(self.param_names[j] in RIG for j in free)
         shapes = (jax.ShapeDtypeStruct((), t.dtype), jax.ShapeDtypeStruct((p, p), t.dtype),
@@ -189,8 +191,7 @@ class MeasurementModel(eqx.Module, NamedParameters):
         """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict - y)``
         of one channel in each movement's onset shift (s) then log duration factor, at zero
         (NumPy in and out, by the compiled loop; the movement timing's steps)."""
-        v = self.physical(np.asarray(u, dtype=np.float64))  # NumPy: no JAX dispatch
-        theta = np.array([v[n] for n in self.param_names])
+        theta = self._theta(np.asarray(u, dtype=np.float64))  # NumPy: no JAX dispatch
         return timing_normal_equations(theta, t, commands, signs, stretch, direction, y, weight,
                                        names=self.law_names, stroke_mm=self.stroke_mm)
 
