@@ -1,4 +1,5 @@
-"""The compiled forward-mode loop agrees with JAX's ``jacfwd`` of the channel's scan."""
+"""The compiled loops (the value with its forward-mode Jacobian, the value alone) agree with
+JAX's channel scan and its ``jacfwd``."""
 
 import jax
 import jax.numpy as jnp
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 from frictionfit.models import MeasurementModel
-from frictionfit.models._forward import channel_jacobian
+from frictionfit.models._forward import channel_jacobian, channel_values
 from frictionfit.models.measurement import LAWS, _channel_fn
 
 VALUES = dict(offset=0.1, drift=0.01, leak=0.05, k=8.0, f_kin=0.6, f_static_excess=0.4,
@@ -44,6 +45,10 @@ def test_channel_and_jacobian_match_jacfwd_of_the_scan(law):
     np.testing.assert_allclose(value, want_v, rtol=1e-12, atol=1e-12 * np.abs(want_v).max())
     scale = np.abs(want_j).max(axis=(0, 1))  # per column: each parameter's own unit
     np.testing.assert_allclose(jac / scale, want_j / scale, rtol=0, atol=1e-11)
+    # the value alone (its twin loop, coefficients reused while the interval holds)
+    alone = channel_values(theta, t, cmd, signs, stretch, direction, names=LAWS[law],
+                           stroke_mm=1.3)
+    np.testing.assert_allclose(alone, want_v, rtol=0, atol=1e-11 * np.abs(want_v).max())
     # a held rig: the same value and columns, the rig's left 0
     v0, j0 = channel_jacobian(theta, t, cmd, signs, stretch, direction,
                               names=LAWS[law], stroke_mm=1.3, rig_columns=False)

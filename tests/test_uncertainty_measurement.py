@@ -127,14 +127,9 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
     bounds, times the logistic Jacobian) has its mode inside every bound: started with a
     parameter put on its bound (``u`` = 40, where the logistic map's slope is 0), the search
     for emcee's first proposal goes back to the mode, with a finite, non-zero width."""
-    import jax.numpy as jnp
 
     from frictionfit.fit.measurement import stack_items
-    from frictionfit.uncertainty.measurement import (
-        _U_START,
-        _proposal_start,
-        _unconstrained_density_fn,
-    )
+    from frictionfit.uncertainty.measurement import _U_START, _density, _proposal_start
 
     items, res = fitted
     model = res.member(0)
@@ -145,10 +140,10 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
     u_free[:, j] = 40.0
     sub = [dataclasses.replace(d, commands=np.asarray(res.drive_input[i][0]))
            for i, d in enumerate(items)]
-    data = tuple(jnp.asarray(a) for a in stack_items(sub, u))
+    data = stack_items(sub, u)
     s2 = res.block_var
     mode, covs = _proposal_start(model, free, u_free, data, s2)
-    density = _unconstrained_density_fn(model, free)
+    density = _density(model, free, data, s2)
     start = np.clip(u_free, -_U_START, _U_START)
     for k in range(2):
         sd = np.sqrt(np.diag(covs[k]))
@@ -159,29 +154,37 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
         points = np.repeat(mode[k][None], 4, axis=0)
         points[1:, j] += (-sd[j], sd[j], 0.0)
         points[3] = start[k]
-        lp = np.asarray(density(jnp.asarray(points), jnp.full(4, k), data, jnp.asarray(s2)))
+        lp = density(points, np.full(4, k))
         assert np.all(lp[0] >= lp[1:])
 
 
 def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
     """emcee's density is the fit's own: at the fit's optimum its Gauss-Newton curvature
     (the data's and the priors' rows over the fit's block variance) is the inverse of the
-    fit's covariance, so Laplace and emcee describe one posterior."""
+    fit's covariance, so Laplace and emcee describe one posterior; the host's density (the
+    value-only loop) is the Gauss-Newton path's (the loop with its Jacobian) around it."""
     import jax.numpy as jnp
 
     from frictionfit.fit._stats import VANISHING
     from frictionfit.fit.measurement import stack_items
-    from frictionfit.uncertainty.measurement import _gauss_newton_fn
+    from frictionfit.uncertainty.measurement import _bounded, _density, _gauss_newton_fn
 
     items, res = fitted
     model = res.member(0)
     free = tuple(model.param_names.index(p) for p in res.free_names(0))
     u = np.stack(res.u)
-    data = tuple(jnp.asarray(a) for a in stack_items(
-        [d.driven_by(res.drive_input[i]) for i, d in enumerate(items)], u))
+    data = stack_items([d.driven_by(res.drive_input[i]) for i, d in enumerate(items)], u)
     curvature = _gauss_newton_fn(model, free)
+    density = _density(model, free, data, res.block_var)
+    rng = np.random.default_rng(0)
     for i in range(2):
         row = tuple(a[i] for a in data)
+        points = u[i, list(free)] + np.vstack([np.zeros(len(free)),
+                                               0.05 * rng.standard_normal((3, len(free)))])
+        host = density(points, np.full(4, i))
+        for point, lp in zip(points, host, strict=True):
+            ref = curvature(jnp.asarray(point), row, res.block_var[i], _bounded(model, free))[0]
+            np.testing.assert_allclose(lp, float(ref), rtol=1e-9)
         _, _, hess = curvature(jnp.asarray(u[i, list(free)]), row, res.block_var[i],
                                jnp.zeros(len(free), bool))
         # a parameter on its bound has a vanishing column: compare the others

@@ -34,6 +34,7 @@ import numpy as np
 
 from frictionfit.models._forward import (
     channel_jacobian,
+    channel_values,
     timing_normal_equations,
     weighted_normal_equations,
 )
@@ -146,11 +147,21 @@ class MeasurementModel(eqx.Module, NamedParameters):
                        _ones_if_none(stretch, commands))
 
     def _theta(self, u):
-        """The physical values of unconstrained ``u`` as one vector in :attr:`param_names`'
-        order (NumPy for a NumPy ``u``)."""
+        """The physical values of unconstrained ``u (..., p)`` along its last axis in
+        :attr:`param_names`' order (NumPy for a NumPy ``u``)."""
         v = self.physical(u)
         xp = np if isinstance(u, np.ndarray) else jnp
-        return xp.stack([v[n] for n in self.param_names])
+        return xp.stack([v[n] for n in self.param_names], axis=-1)
+
+    def weighted_cost(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray, signs: np.ndarray,
+                stretch: np.ndarray, direction: np.ndarray, y: np.ndarray,
+                weight: np.ndarray) -> np.ndarray:
+        """``|weight (predict - y)|^2 / 2`` (N^2) at unconstrained ``u (..., p)`` for a batch
+        (NumPy in and out, by the compiled loop, no JAX: a sampler's density)."""
+        theta = self._theta(np.asarray(u, dtype=np.float64))
+        value = channel_values(theta, t, commands, signs, stretch, direction,
+                               names=self.law_names, stroke_mm=self.stroke_mm)
+        return 0.5 * np.sum((weight * (value - y)) ** 2, axis=-1)
 
     def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = (),
                 stretch=None, timing_derivatives: bool = False):
@@ -233,7 +244,8 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
 
     Its derivative is the channel's Jacobian in the ``varied`` entries of ``theta`` times
     their tangent, the Jacobian from the compiled loop of :mod:`frictionfit.models._forward`
-    (the scan's ``jacfwd`` is bound by XLA's kernel launches): a Jacobian of the whole
+    (the scan's ``jacfwd`` is bound by XLA's kernel launches); its value comes from that
+    loop too (a host callback, faster than XLA's scan even batched). A Jacobian of the whole
     residual (``jacfwd``) then evaluates the drive and the simulation once, whatever its
     number of parameters, and a held rig leaves the drive's tangents out of the contact.
     ``t``, ``commands``, ``signs``, ``stretch`` and ``direction`` are data: never
@@ -254,11 +266,14 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
 
     on_host = partial(channel_jacobian, names=names, stroke_mm=stroke_mm,
                       rig_columns=any(j >= s + m + 1 for j in varied))
+    values = partial(channel_values, names=names, stroke_mm=stroke_mm)
     mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
 
     @jax.custom_jvp
     def simulated(theta, t, commands, signs, stretch, direction):
-        return channel(theta, t, commands, signs, stretch, direction)
+        return jax.pure_callback(values, jax.ShapeDtypeStruct(t.shape, t.dtype), theta, t,
+                                 commands, signs, stretch, direction,
+                                 vmap_method="broadcast_all")
 
     @simulated.defjvp
     def _(primals, tangents):

@@ -48,7 +48,10 @@ OFFSET_PRIOR_SD_N = 100.0
 
 def log_logistic(u):
     """Log density of the standard logistic at ``u``: the log Jacobian of the logistic map
-    from an unconstrained coordinate to its bounded value (a flat density there)."""
+    from an unconstrained coordinate to its bounded value (a flat density there); NumPy for
+    a NumPy ``u``."""
+    if isinstance(u, np.ndarray):
+        return -np.logaddexp(0.0, u) - np.logaddexp(0.0, -u)
     return -jax.nn.softplus(u) - jax.nn.softplus(-u)
 
 

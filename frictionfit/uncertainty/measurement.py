@@ -18,8 +18,8 @@ covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximatio
   and the density has its mode inside), all recordings' walkers in one ensemble with
   :func:`~frictionfit.uncertainty._ensemble.run_lockstep` (adaptive independence proposal,
   started from a Gauss-Newton mode and covariance in ``u``, each recording run to >=
-  ``min_tau_multiple`` integrated autocorrelation times), jitted, vmapped JAX calls in
-  chunks of one size per step.
+  ``min_tau_multiple`` integrated autocorrelation times), the density evaluated on the
+  host by the model's compiled loop, every walker of a step in one call.
 - ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
@@ -41,13 +41,11 @@ import numpy as np
 
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult
-from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit._stats import VANISHING
 from frictionfit.fit.measurement import (
     MeasurementData,
     normal_fn,
     profile_drops,
-    residual_fn,
     stack_items,
 )
 from frictionfit.models import MeasurementModel
@@ -61,37 +59,31 @@ __all__ = ["measurement_posterior"]
 _SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
 
 
-def _log_density(model: MeasurementModel, free: tuple[int, ...]):
-    """``f(u_free, i, data, s2)``: the log density at the free parameters ``u_free`` (the
-    fit's unconstrained coordinates) of item ``i`` of the stacked ``data``; ``s2`` (per
-    item) the variance of a weighted block residual (N^2)."""
-    residual = residual_fn(model, free)
-
-    def one(u_free, i, data, s2):
-        r = residual(u_free, jax.tree_util.tree_map(lambda a: a[i], data))
-        lp = -0.5 * jnp.sum(r**2) / s2[i]
-        return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
-
-    return one
-
-
 def _bounded(model: MeasurementModel, free: tuple[int, ...]) -> np.ndarray:
     """Which free parameters are bounded (a logistic map between ``u`` and the value)."""
     return np.array([model.params[j].transform != "identity" for j in free])
 
 
-@lru_cache(maxsize=16)
-def _unconstrained_density_fn(model: MeasurementModel, free: tuple[int, ...]):
-    """:func:`_log_density` over rows, flat on the bounds of each parameter's sampling
-    coordinate (value or log value) and carried to the fit's unconstrained ``u`` (its
-    logistic Jacobian): ``f(U (R, q), idx, data, s2)``."""
-    density = _log_density(model, free)
-    bounded = jnp.asarray(_bounded(model, free))
+def _density(model: MeasurementModel, free: tuple[int, ...], data: tuple, s2: np.ndarray):
+    """``f(U (R, q), idx (R,)) -> (R,)``: the log density at the free parameters ``U`` (the
+    fit's unconstrained coordinates) of items ``idx`` of the stacked NumPy ``data``, flat on
+    the bounds of each parameter's sampling coordinate (value or log value) and carried to
+    ``u`` (its logistic Jacobian); ``s2`` (per item) the variance of a weighted block
+    residual (N^2). On the host by the compiled loop (no JAX): emcee's density."""
+    y, weight, t, commands, signs, stretch, direction, noise, base = data
+    bounded, free_l = _bounded(model, free), list(free)
 
-    def one(u, i, data, s2):
-        return density(u, i, data, s2) + jnp.sum(jnp.where(bounded, log_logistic(u), 0.0))
+    def evaluate(u_free: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        u = base[idx]
+        u[:, free_l] = u_free
+        cost = model.weighted_cost(u, t[idx], commands[idx], signs[idx], stretch[idx],
+                                   direction[idx], y[idx], weight[idx])
+        prior = noise[idx, None] * model.prior_residuals(u)
+        lp = (-(cost + 0.5 * np.sum(prior**2, axis=-1)) / s2[idx]
+              + np.sum(np.where(bounded, log_logistic(u_free), 0.0), axis=-1))
+        return np.where(np.isfinite(lp), lp, -np.inf)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    return evaluate
 
 
 def _profile_disagreement(model, free, data, s2, mode: np.ndarray, cov: np.ndarray
@@ -226,8 +218,8 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
     if method != "laplace":  # the density is needed
         sub = [items[i].driven_by(fit.drive_input[i]) for i in rows]
-        data = tuple(jnp.asarray(a) for a in stack_items(sub, u_hat))
-        s2 = jnp.asarray(fit.block_var[rows])
+        data = stack_items(sub, u_hat)
+        s2 = np.asarray(fit.block_var[rows])
     if method == "auto":
         dev = _profile_disagreement(model, free, data, s2, mode, cov)
         reasons = [auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
@@ -267,7 +259,7 @@ _U_START = 5.0
 @lru_cache(maxsize=16)
 def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data, s2, bounded) -> (log density, gradient, Gauss-Newton
-    Hessian)`` of one item's density in ``u`` (:func:`_unconstrained_density_fn`), the
+    Hessian)`` of one item's density in ``u`` (:func:`_density`), the
     logistic Jacobian's terms exact."""
     normal = normal_fn(model, free)
 
@@ -316,28 +308,14 @@ def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
     return mode, covs
 
 
-def _chunked(f, chunk: int = 128):
-    """``f(x (R, q), idx (R,), *args)`` evaluated in chunks of one size (``chunk``, or the
-    power of two above ``R`` if smaller): few compiled shapes, little padding."""
-
-    def evaluate(x: np.ndarray, idx: np.ndarray, *args) -> np.ndarray:
-        size = min(chunk, 1 << (x.shape[0] - 1).bit_length())
-        return map_chunks(lambda xs, ids: f(jnp.asarray(xs), jnp.asarray(ids), *args),
-                          (x, idx), size)
-
-    return evaluate
-
-
 def _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, kw: dict) -> None:
     """emcee for the group's rows ``sel`` in the fit's unconstrained coordinates (the density
     flat on the bounds of the sampling coordinates, times the logistic Jacobian), started
     from :func:`_proposal_start` (the pilot stages refit the proposal)."""
     free_l = list(free)
-    sub = jax.tree_util.tree_map(lambda a: a[sel], data)
-    s2_sub = s2[sel]
-    centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, np.asarray(s2_sub))
-    f = _chunked(_unconstrained_density_fn(model, free))
-    chains = run_lockstep(lambda x, idx: f(x, idx, sub, s2_sub), centre, covs, **kw)
+    sub = tuple(a[sel] for a in data)
+    centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, s2[sel])
+    chains = run_lockstep(_density(model, free, sub, s2[sel]), centre, covs, **kw)
     for k, chain in zip(sel, chains, strict=True):
         i = rows[k]
         out["method"][i] = "emcee"
