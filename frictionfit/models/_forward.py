@@ -74,21 +74,29 @@ def _limit(p, lanes, to_half, s, ds, dlim):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _constants(x, p, lanes):
+    """The law's stiffness ``k``, branch fractions ``rf``, ``rf2`` (0 where absent), the
+    second branch's share ``rf2 (1 - rf)`` and half the finger's total travel (mm; 0
+    without wear)."""
+    i_k, _, _, _, i_rf, _, i_rf2, _, _, i_wear = lanes
+    rf = p[i_rf] if i_rf >= 0 else 0.0
+    rf2 = p[i_rf2] if i_rf2 >= 0 else 0.0
+    half = 0.0
+    if i_wear >= 0:
+        for i in range(1, x.size):
+            half += abs(x[i] - x[i - 1])
+        half *= 0.5
+    return p[i_k], rf, rf2, rf2 * (1.0 - rf), half
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _one(x, xdot, dt, p, lanes, force, jac):
     """Force (n,) and Jacobian (n, m + r) of one simulation, written into the outputs."""
     n, r = xdot.shape
     m = p.size
     q = m + r
     i_k, _, i_fse, _, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
-    k = p[i_k]
-    rf = p[i_rf] if i_rf >= 0 else 0.0
-    rf2 = p[i_rf2] if i_rf2 >= 0 else 0.0
-    w2_frac = rf2 * (1.0 - rf)
-    half = 0.0
-    if i_wear >= 0:
-        for i in range(1, n):
-            half += abs(x[i] - x[i - 1])
-        half *= 0.5
+    k, rf, rf2, w2_frac, half = _constants(x, p, lanes)
     z = s = w = w2 = travel = 0.0
     direction = 1.0
     dz, ds, dw, dw2 = np.zeros(q), np.zeros(q), np.zeros(q), np.zeros(q)
@@ -166,16 +174,8 @@ def _contact(x, dt, p, lanes, force):
     changes (the Maxwell steps' while the interval holds, the slip's and the wear's while
     the finger moves)."""
     n = x.size
-    i_k, i_fk, i_fse, i_sl, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
-    k = p[i_k]
-    rf = p[i_rf] if i_rf >= 0 else 0.0
-    rf2 = p[i_rf2] if i_rf2 >= 0 else 0.0
-    w2_frac = rf2 * (1.0 - rf)
-    half = 0.0
-    if i_wear >= 0:
-        for i in range(1, n):
-            half += abs(x[i] - x[i - 1])
-        half *= 0.5
+    _, i_fk, i_fse, i_sl, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
+    k, rf, _, w2_frac, half = _constants(x, p, lanes)
     scale = math.exp(p[i_wear] * half) if i_wear >= 0 else 1.0
     z = s = w = w2 = travel = 0.0
     decay, direction, interval = 1.0, 1.0, -1.0
