@@ -153,9 +153,9 @@ class MeasurementModel(eqx.Module, NamedParameters):
         xp = np if isinstance(u, np.ndarray) else jnp
         return xp.stack([v[n] for n in self.param_names], axis=-1)
 
-    def weighted_cost(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray, signs: np.ndarray,
-                stretch: np.ndarray, direction: np.ndarray, y: np.ndarray,
-                weight: np.ndarray) -> np.ndarray:
+    def weighted_cost(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
+                      signs: np.ndarray, stretch: np.ndarray, direction: np.ndarray,
+                      y: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """``|weight (predict - y)|^2 / 2`` (N^2) at unconstrained ``u (..., p)`` for a batch
         (NumPy in and out, by the compiled loop, no JAX: a sampler's density)."""
         theta = self._theta(np.asarray(u, dtype=np.float64))
