@@ -239,19 +239,31 @@ def _trapezoid(u, accel):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _under_way(t, commands):
+    """Per sample of increasing times ``t``, the index of the last command given by then
+    (the movement under way; -1 before the first)."""
+    last, out = -1, np.empty(t.size, np.int64)
+    for i in range(t.size):
+        while last + 1 < commands.size and commands[last + 1] <= t[i]:
+            last += 1
+        out[i] = last
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _drive(rig, t, commands, signs, stretch, stroke, x, speed, dx, dspeed):
     """The finger's travel (mm) and velocity (mm/s) at increasing times ``t``, written into
     ``x`` and ``speed``, and their derivatives in ``rig = (delay, ramp, accel)`` into ``dx``
     and ``dspeed`` (n, 3): ``MeasurementModel.finger``'s twin."""
     delay, ramp, accel = rig[0], rig[1], rig[2]
-    last, done = -1, 0.0  # the last command given, and the strokes completed before it
+    last = _under_way(t, commands)
+    done, counted = 0.0, 0  # the strokes completed before the movement under way
     for i in range(t.size):
-        while last + 1 < commands.size and commands[last + 1] <= t[i]:
-            last += 1
-            if last > 0:
-                done += signs[last - 1]
-        now = max(last, 0)
-        sign = signs[now] if last >= 0 else 0.0
+        now = max(last[i], 0)
+        while counted < now:
+            done += signs[counted]
+            counted += 1
+        sign = signs[now] if last[i] >= 0 else 0.0
         duration = ramp * stretch[now]
         u = (t[i] - commands[now] - delay) / duration
         pos, vel, pos_u, vel_u, pos_a, vel_a = _trapezoid(u, accel)
@@ -276,22 +288,32 @@ def _intervals(t):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _readings(theta, t, x, speed, force, direction, value):
+    """The sensor's reading (N) of the contact's ``force`` with the drag at the finger's
+    ``speed``, plus its offset, drift and the leak of the travel ``x``, written into
+    ``value``: ``MeasurementModel``'s channel from its parts (``theta`` in its order)."""
+    m = theta.size - 7
+    for i in range(t.size):
+        value[i] = (theta[0] + theta[1] * (t[i] - t[0]) + theta[2] * x[i]
+                    + direction * (force[i] + theta[3 + m] * speed[i]))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _channel(theta, t, commands, signs, stretch, direction, stroke, lanes, r, value, columns):
     """One channel's value (n,) and Jacobian (n, p) in ``theta`` (sensor, law, drag, rig),
     written into the outputs; ``r``: 3 to push the rig's tangents through the contact, 0 to
     leave the rig's columns 0."""
     n, p = t.size, theta.size
     m = p - 7  # theta: offset, drift, leak, the law's m, drag, delay, ramp, accel
-    offset, drift, leak, drag = theta[0], theta[1], theta[2], theta[3 + m]
+    leak, drag = theta[2], theta[3 + m]
     x, speed = np.empty(n), np.empty(n)
     dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
     _drive(theta[p - 3:], t, commands, signs, stretch, stroke, x, speed, dx, dspeed)
     dt = _intervals(t)
     force, jac = np.empty(n), np.empty((n, m + r))
     _one(x, dx[:, :r], dt, theta[3:3 + m], lanes, force, jac)
+    _readings(theta, t, x, speed, force, direction, value)
     for i in range(n):
-        value[i] = (offset + drift * (t[i] - t[0]) + leak * x[i]
-                    + direction * (force[i] + drag * speed[i]))
         out = columns[i]
         out[0], out[1], out[2] = 1.0, t[i] - t[0], x[i]
         for j in range(m):
@@ -313,9 +335,7 @@ def _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes, v
         th, tb = theta[b], t[b]
         _drive(th[p - 3:], tb, commands[b], signs[b], stretch[b], stroke, x, speed, dx, dspeed)
         _contact(x, _intervals(tb), th[3:3 + m], lanes, force)
-        for i in range(n):
-            value[b, i] = (th[0] + th[1] * (tb[i] - tb[0]) + th[2] * x[i]
-                           + direction[b] * (force[i] + th[3 + m] * speed[i]))
+        _readings(th, tb, x, speed, force, direction[b], value[b])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -357,31 +377,30 @@ def _timing_normal(theta, t, commands, signs, stretch, direction, y, weight, str
     then log duration factor (written into the outputs)."""
     n, p, c = t.size, theta.size, commands.size
     m = p - 7
-    offset, drift, leak, drag, ramp = theta[0], theta[1], theta[2], theta[3 + m], theta[p - 2]
+    leak, drag, ramp = theta[2], theta[3 + m], theta[p - 2]
     x, speed = np.empty(n), np.empty(n)
     dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
     _drive(theta[p - 3:], t, commands, signs, stretch, stroke, x, speed, dx, dspeed)
     # a shift of the movement under way moves its onset as the delay does; a log duration
     # factor stretches it as ramp d/dramp does
     xdot, sdot = np.zeros((n, 2 * c)), np.zeros((n, 2 * c))
-    last = -1
+    last = _under_way(t, commands)
     for i in range(n):
-        while last + 1 < c and commands[last + 1] <= t[i]:
-            last += 1
-        if last >= 0:
-            xdot[i, last], sdot[i, last] = dx[i, 0], dspeed[i, 0]
-            xdot[i, c + last], sdot[i, c + last] = ramp * dx[i, 1], ramp * dspeed[i, 1]
+        j = last[i]
+        if j >= 0:
+            xdot[i, j], sdot[i, j] = dx[i, 0], dspeed[i, 0]
+            xdot[i, c + j], sdot[i, c + j] = ramp * dx[i, 1], ramp * dspeed[i, 1]
     dt = _intervals(t)
     force, jac = np.empty(n), np.empty((n, m + 2 * c))
     _one(x, xdot, dt, theta[3:3 + m], lanes, force, jac)
-    col = np.empty(2 * c)
+    value, col = np.empty(n), np.empty(2 * c)
+    _readings(theta, t, x, speed, force, direction, value)
     ctc[:] = 0.0
     ctr[:] = 0.0
     total = 0.0
     for i in range(n):
         w = weight[i]
-        res = w * (offset + drift * (t[i] - t[0]) + leak * x[i]
-                   + direction * (force[i] + drag * speed[i]) - y[i])
+        res = w * (value[i] - y[i])
         total += res * res
         for j in range(2 * c):
             col[j] = w * (leak * xdot[i, j] + direction * (jac[i, m + j] + drag * sdot[i, j]))

@@ -196,7 +196,6 @@ class MeasurementModel(eqx.Module, NamedParameters):
             weight, vmap_method="broadcast_all")
         return cost, d_theta.T @ ctc @ d_theta, d_theta.T @ ctr
 
-
     def timing_normal_equations(self, u, t, commands, signs, stretch, direction, y, weight
                                 ) -> tuple[float, np.ndarray, np.ndarray]:
         """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict - y)``
