@@ -118,20 +118,22 @@ pd.DataFrame(rows).round(4)
 # finger's travel) and one contact law (`relaxation2`: two Maxwell branches, plus a sliding
 # drag and a `wear` of the kinetic level with the finger's travel), the law's state carried
 # from stroke to stroke. The first motion is simulated but not fitted (it starts from the
-# unknown state the closing of the fingers left).
+# unknown state the closing of the fingers left). The truth it is compared with
+# (`measurement_truth`) is the median over the fitted motions, and for `f_kin` the level
+# halfway through the finger's travel, where the `wear` puts the fitted one.
 
 # %%
 from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit.simulation.measurements import measurement_truth
 
 item = measurement_data(rec, "index_x")
 whole = fit_measurements([item], model="relaxation2")
 print(fit_report(whole, 0))
 law = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
-true_whole = {n: np.median([tm["channels"]["index_x"][n] for tm in rec.truth["motions"][1:]])
-              for n in law}
+true_whole = {n: measurement_truth(rec, n) for n in law}
 pd.DataFrame({"fitted": whole.values.loc[0, list(law)],
               "stderr": whole.stderr.loc[0, list(law)],
-              "true (median over motions)": true_whole,
+              "true": true_whole,
               "per-motion fit (median)": {n: np.median(result.values[n])
                                           if n in result.params(0) else np.nan for n in law},
               "flag": {n: whole.flags[0].get(n, "") for n in law}}).round(4)
@@ -215,7 +217,7 @@ display(Image(filename=FIGURES / "corner.png"))
 # N/mm and its friction parameters singular. The three `relaxation` fits are off in the other law
 # parameters too: `f_kin` 0.68-0.79 N (true 0.56-0.59), `relax_frac` 0.27-0.39 (0.14), `tau` 5-9 ms
 # (50 ms). Fitted whole (`relaxation2`), with each movement's onset and duration from the motor's
-# reads, the same recording gives `k` 41 +/- 32 N/mm (true 38), `f_kin` 0.592 N (0.586),
+# reads, the same recording gives `k` 41 +/- 32 N/mm (true 38), `f_kin` 0.592 N (0.587),
 # `f_static_excess` 0.275 N (0.276), `tau` 49 ms (50 ms) and `relax_frac` 0.15 (0.14), at R^2 0.9994
 # over eight fitted strokes; the held force it derives, 0.483 +/- 0.003 N, is determined far better
 # than any of the parameters that make it up. The kinetic level falls by `wear` 0.0036 +/- 0.0014

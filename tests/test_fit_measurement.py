@@ -27,7 +27,11 @@ from frictionfit.fit.measurement import (
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
 from frictionfit.recording import read_recording, write_recording
-from frictionfit.simulation.measurements import motor_profile, simulate_measurements
+from frictionfit.simulation.measurements import (
+    measurement_truth,
+    motor_profile,
+    simulate_measurements,
+)
 
 
 @pytest.mark.parametrize("accel", [0.05, 0.2, 0.45])
@@ -206,8 +210,7 @@ def test_recovers_stiffness_and_friction_of_simulated_measurements(simulated):
     assert all(Status(int(s)) in (Status.CONVERGED, Status.ILL_CONDITIONED) for s in res.status)
     err = {}
     for name in ("k", "f_kin"):
-        truth = [np.median([m["channels"]["index_x"][name] for m in r.truth["motions"][1:]])
-                 for r in simulated]
+        truth = [measurement_truth(r, name) for r in simulated]
         fitted = res.values[name].to_numpy()
         err[name] = np.median(np.abs(fitted / np.array(truth) - 1))
     # measured on these six: k 0.03, f_kin 0.01 (per-motion fits: k off by 50x)
@@ -312,7 +315,7 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
         for s in (1, 2):
             assert np.ptp(values[sessions == s]) == 0.0  # one motor per day
         assert all(f[name] == "fixed" for f in res.flags)
-    truth = [np.median([m["ramp"] for m in r.truth["motions"][1:]]) for r in simulated]
+    truth = [measurement_truth(r, "ramp") for r in simulated]
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
 
 

@@ -1,5 +1,7 @@
 """Simulated rubbing measurements: library, lab layout, truth, faults, round trip, determinism."""
 
+import copy
+import dataclasses
 import json
 
 import numpy as np
@@ -10,6 +12,7 @@ from frictionfit.simulation.materials import CLASSES, MATERIALS, material_for
 from frictionfit.simulation.measurements import (
     CHANNELS,
     N_SAMPLES,
+    measurement_truth,
     simulate_dataset,
     simulate_measurements,
 )
@@ -78,6 +81,18 @@ def test_truth_per_motion_and_channel(recs):
     # forces scale with each channel's gain; time constants do not
     assert thumb["f_kin"] / index["f_kin"] == pytest.approx(abs(thumb["gain"] / index["gain"]))
     assert thumb["tau"] == index["tau"]
+
+
+def test_measurement_truth_is_what_a_whole_fit_estimates(recs):
+    rec = dataclasses.replace(recs[2], truth=copy.deepcopy(recs[2].truth))
+    for i, m in enumerate(rec.truth["motions"]):
+        m["channels"]["index_x"]["f_kin"] = 2.0 * 0.99**i  # wearing 1 % per motion
+        m["channels"]["index_x"]["k"] = [50.0, 1.0, 2.0, 3.0, 4.0][i]
+        m["channels"]["thumb_x"]["k"] = 7.0
+    # f_kin: the trend through the fitted motions (1-4) halfway through the travel (motion 2)
+    assert measurement_truth(rec, "f_kin") == pytest.approx(2.0 * 0.99**2, rel=1e-12)
+    assert measurement_truth(rec, "k") == 2.5  # median over the fitted motions
+    assert measurement_truth(rec, "k", "thumb_x") == 7.0
 
 
 def test_faults_are_present_and_flagged_on_read(tmp_path):

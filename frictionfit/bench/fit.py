@@ -197,22 +197,23 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     enough for batching to count: with 4 trials in a pool of 4 the comparison with
     scipy-jax measured per-call overhead, 1.1x) and 4 per peer, without the grid;
     under a minute on this machine. ``summary["measurements"]``: truth recovery and
-    speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 35
-    measurements, 8 with ``quick``), with its scipy peers on 4 of them (``scipy-numpy`` on
-    2). Timings are medians of interleaved repetitions; ``compile_s`` is the first call of
-    ours minus a steady one. The full run adds ``summary["measurements_motor_reads"]``: the
-    same 35 measurements with the motor's position read at 50 Hz, each movement's timing
-    taken from the reads (no peers).
+    speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 140
+    measurements: every class, two sessions, two trials; 8 with ``quick``), with its scipy
+    peers on 4 of them (``scipy-numpy`` on 2). Timings are medians of interleaved
+    repetitions; ``compile_s`` is the first call of ours minus a steady one. The full run
+    adds ``summary["measurements_motor_reads"]``: the same measurements with the motor's
+    position read at 50 Hz, each movement's timing taken from the reads (no peers).
     """
-    from frictionfit.bench.measurement import recovery
+    from frictionfit.bench.measurement import RECOVERY_N, recovery
 
     if quick:
         out = measure("elastic_plastic", 64, 4, 32, 1, grid=False, seed=seed)
     else:
         out = measure(DEFAULT_MODEL, 256, 8, 32, 2, grid=True, seed=seed)
-    out["summary"]["measurements"] = recovery(8 if quick else 35, seed=seed)
+    n = 8 if quick else RECOVERY_N
+    out["summary"]["measurements"] = recovery(n, seed=seed)
     if not quick:
-        out["summary"]["measurements_motor_reads"] = recovery(35, seed=seed, n_peer=0,
+        out["summary"]["measurements_motor_reads"] = recovery(n, seed=seed, n_peer=0,
                                                               position_rate_hz=50.0)
     return out
 

@@ -74,6 +74,7 @@ def demo(
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.segmentation import segment
+    from frictionfit.simulation.measurements import measurement_truth
 
     out.mkdir(parents=True, exist_ok=True)
     recs = _sample_recordings(data, out)
@@ -97,15 +98,15 @@ def demo(
                                                                       index=False)
     typer.echo("\n" + fit_report(result, 0))
     typer.echo(f"\ntruth/fit ({channel}; each recording fitted whole; truth: median over the "
-               "fitted motions; the simulator adds damping and per-movement timing jitter)")
+               "fitted motions, f_kin halfway through the travel; the simulator adds damping "
+               "and per-movement timing jitter)")
     names = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
     typer.echo(f"{'recording':22s} " + " ".join(f"{n:>17s}" for n in names))
     for i, rec in enumerate(recs):
         values = result.params(i)  # its law's own; a parameter the law lacks reads 0
         cells = []
         for n in names:
-            true = np.median([tm["channels"][channel][n] for tm in rec.truth["motions"][1:]]
-                             ) if rec.truth else np.nan
+            true = measurement_truth(rec, n, channel) if rec.truth else np.nan
             cells.append(f"{true:8.3g}/{values.get(n, 0.0):<8.3g}")
         typer.echo(f"{rec.name:22s} " + " ".join(cells))
     typer.echo(f"\nall fits: {out / 'fits.csv'}")

@@ -58,7 +58,8 @@ from frictionfit.simulation.materials import (
     material_for,
 )
 
-__all__ = ["CHANNELS", "FAULT_KINDS", "simulate_dataset", "simulate_measurements"]
+__all__ = ["CHANNELS", "FAULT_KINDS", "measurement_truth", "simulate_dataset",
+           "simulate_measurements"]
 
 RATE_HZ = 1000.0
 N_MOTIONS = 5
@@ -309,6 +310,28 @@ def _truth(plan: dict, level: np.ndarray, seed: int) -> dict:
     return {"generator": "frictionfit.simulation.measurements", "seed": seed,
             "law": "rich + viscous drag", "session": session, "preload": plan["preload"],
             "motions": motions, "faults": faults}
+
+
+def measurement_truth(rec: Recording, name: str, channel: str = "index_x") -> float:
+    """The value of ``name`` that a whole fit of ``rec``'s ``channel`` estimates, from the
+    truth in its sidecar: the median over the fitted motions (all but the first); for
+    ``f_kin`` the level halfway through the measurement's travel (where the fits' ``f_kin``
+    is defined; their ``wear`` takes the trend) of the log-linear trend through the fitted
+    motions' levels; ``ramp`` the movement duration (s); ``drag`` scaled by the channel's
+    gain (N s/mm)."""
+    motions = rec.truth["motions"]
+    fitted = motions[1:]
+    if name == "ramp":
+        return float(np.median([m["ramp"] for m in fitted]))
+    if name == "drag":
+        return float(np.median([m["params"]["drag"] * abs(m["channels"][channel]["gain"])
+                                for m in fitted]))
+    levels = np.array([m["channels"][channel][name] for m in fitted])
+    if name != "f_kin":
+        return float(np.median(levels))
+    index = np.array([m["index"] for m in fitted], dtype=np.float64)
+    slope, at_zero = np.polyfit(index, np.log(levels), 1)
+    return float(np.exp(at_zero + slope * (len(motions) - 1) / 2))
 
 
 def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
