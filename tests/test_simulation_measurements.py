@@ -89,8 +89,9 @@ def test_measurement_truth_is_what_a_whole_fit_estimates(recs):
         m["channels"]["index_x"]["f_kin"] = 2.0 * 0.99**i  # wearing 1 % per motion
         m["channels"]["index_x"]["k"] = [50.0, 1.0, 2.0, 3.0, 4.0][i]
         m["channels"]["thumb_x"]["k"] = 7.0
-    # f_kin: the trend through the fitted motions (1-4) halfway through the travel (motion 2)
-    assert measurement_truth(rec, "f_kin") == pytest.approx(2.0 * 0.99**2, rel=1e-12)
+    # f_kin: the trend through the fitted motions (1-4) halfway through the travel, the end
+    # of motion 2's out stroke, a quarter motion before the middle of motion 2's level
+    assert measurement_truth(rec, "f_kin") == pytest.approx(2.0 * 0.99**1.75, rel=1e-12)
     assert measurement_truth(rec, "k") == 2.5  # median over the fitted motions
     assert measurement_truth(rec, "k", "thumb_x") == 7.0
 

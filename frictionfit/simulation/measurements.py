@@ -331,7 +331,10 @@ def measurement_truth(rec: Recording, name: str, channel: str = "index_x") -> fl
         return float(np.median(levels))
     index = np.array([m["index"] for m in fitted], dtype=np.float64)
     slope, at_zero = np.polyfit(index, np.log(levels), 1)
-    return float(np.exp(at_zero + slope * (len(motions) - 1) / 2))
+    # a motion's level holds from halfway through its out stroke (SWITCH_S) to halfway
+    # through the next one: the middle of the travel, the end of the middle motion's out
+    # stroke, lies a quarter motion before the middle of that motion's level
+    return float(np.exp(at_zero + slope * ((len(motions) - 1) / 2 - 0.25)))
 
 
 def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
