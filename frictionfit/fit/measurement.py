@@ -565,18 +565,28 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
     solver = BatchedLevenbergMarquardt(normal=normal_fn(model, free),
                                        **{field[k]: v for k, v in (tolerances or {}).items()})
+    branches = not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix)
+
+    def solve(start: np.ndarray, rows: np.ndarray, bar=None) -> tuple:
+        """The optimum of items ``rows`` from ``start`` (full ``u``, the faster branch put
+        first), their status, steps and solver statistics, and which rows were relabelled."""
+        u_free, code, steps, stats = solve_pooled(
+            solver, residual, start[:, free], jax.tree_util.tree_map(lambda a: a[rows], data),
+            pool_size=pool_size, max_steps=max_steps, threads=1,
+            progress=None if bar is None else bar.update, solver_stats=True)
+        u = start.copy()
+        u[:, free] = u_free
+        u, relabelled = (_faster_branch_first(model, u) if branches
+                         else (u, np.zeros(len(rows), bool)))
+        return u, code, steps, stats, relabelled
+
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
-        u_free, code, steps, at_solution = solve_pooled(
-            solver, residual, base[:, free], data, pool_size=pool_size, max_steps=max_steps,
-            threads=1, progress=bar.update, solver_stats=True)
-    u = base.copy()
-    u[:, free] = u_free
-    relabelled = np.zeros(len(items), bool)
-    if not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix):
-        u, relabelled = _faster_branch_first(model, u)
-    resid, jtj = _at_optimum(model, free, u[:, free], data, at_solution["jtj"], relabelled)
+        u, code, steps, at_solution, again = solve(base, np.arange(len(items)), bar)
+    if branches:
+        again |= _slow_branch_restarted(model, items, solve, u, code, steps, at_solution)
+    resid, jtj = _at_optimum(model, free, u[:, free], data, at_solution["jtj"], again)
     weight = data[1]
     mask = weight > 0
     # AR(1) residuals carry fewer independent points than blocks: the covariance grows by
@@ -686,6 +696,46 @@ def _physical_init(model: MeasurementModel, guess: dict) -> dict:
 
 def _prior_dict(model: MeasurementModel) -> dict | None:
     return None if model.priors is None else dict(model.prior_table)
+
+
+#: Fraction of the force a slow Maxwell branch pinned at its largest fraction is restarted
+#: from (its time: the median interval between commands, one hold): see
+#: :func:`_slow_branch_restarted`.
+RESTART_FRACTION = 0.2
+
+
+def _slow_branch_restarted(model: MeasurementModel, items: Sequence[MeasurementData], solve,
+                           u: np.ndarray, code: np.ndarray, steps: np.ndarray,
+                           at_solution: dict) -> np.ndarray:
+    """Solve again each item whose slow branch ended at the largest fraction (``relax_frac2``
+    at its upper bound, ``tau2`` seconds long), from the branch at :data:`RESTART_FRACTION`
+    relaxing over one hold, and keep the optimum of lower cost (priors included); ``u``,
+    ``code``, ``steps`` and the solver's statistics updated in place. Returns which items
+    changed. The logistic map is flat at the bound, so a solver that runs there does not
+    come back, though a weaker, faster branch often fits better (docs/decisions.md)."""
+    names = model.param_names
+    if "relax_frac2" not in names:
+        return np.zeros(len(u), bool)
+    j_frac, j_time = names.index("relax_frac2"), names.index("tau2")
+    frac = PARAMS["relax_frac2"]
+    rows = np.flatnonzero((u[:, j_frac] > 0) & frac.at_bound(frac.to_physical(u[:, j_frac])))
+    changed = np.zeros(len(u), bool)
+    if rows.size == 0:
+        return changed
+    start = u[rows].copy()
+    start[:, j_frac] = frac.to_unconstrained(RESTART_FRACTION)
+    hold = np.array([np.median(np.diff(items[i].commands)) for i in rows])
+    slow = PARAMS["tau2"]
+    start[:, j_time] = slow.to_unconstrained(np.where(hold > 0, hold, slow.default))
+    new_u, new_code, new_steps, new_stats, _ = solve(start, rows)
+    better = new_stats["cost"] < at_solution["cost"][rows]
+    keep = rows[better]
+    u[keep], code[keep] = new_u[better], new_code[better]
+    steps[rows] += new_steps
+    for name, value in at_solution.items():
+        value[keep] = new_stats[name][better]
+    changed[keep] = True
+    return changed
 
 
 def _faster_branch_first(model: MeasurementModel, u: np.ndarray

@@ -184,4 +184,4 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     def postprocess(self, fn, y, aux, args, options, state, tags, result
                     ) -> tuple[Any, Any, dict[str, Any]]:
         s, _ = state
-        return s.u, aux, {"steps": s.steps, "jtj": s.jtj}
+        return s.u, aux, {"steps": s.steps, "jtj": s.jtj, "cost": s.cost}
