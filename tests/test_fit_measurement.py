@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import frictionfit.fit.measurement as measurement
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit._numerics import normal_equations
@@ -317,6 +318,23 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
         assert all(f[name] == "fixed" for f in res.flags)
     truth = [measurement_truth(r, "ramp") for r in simulated]
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
+
+
+def test_a_slow_branch_pinned_at_its_bound_is_solved_again(simulated, monkeypatch):
+    # started with the slow branch at its largest fraction, the solver stays there (the
+    # logistic map is flat); solved again from a weaker, faster branch, each fit is better
+    items = [measurement_data(r, "index_x") for r in simulated]
+    model = MeasurementModel("relaxation2")
+    u0 = np.stack([to_unconstrained(model, d.guess | {"relax_frac2": 0.95, "tau2": 8.0})
+                   for d in items])
+    kw = dict(model=model, fix=None, u0=u0, max_steps=400, pool_size=16, progress=False)
+    again = measurement._fit(items, **kw)
+    monkeypatch.setattr(measurement, "_slow_branch_restarted",
+                        lambda model, items, solve, u, *rest: np.zeros(len(u), bool))
+    pinned = measurement._fit(items, **kw)
+    assert all(f["relax_frac2"] == "at bound" for f in pinned.flags)
+    assert not any(f.get("relax_frac2") == "at bound" for f in again.flags)
+    assert np.all(again.chi2 < pinned.chi2)
 
 
 def test_fix_rejects_unknown_parameters(simulated):
