@@ -217,7 +217,7 @@ display(Image(filename=FIGURES / "corner.png"))
 # N/mm and its friction parameters singular. The three `relaxation` fits are off in the other law
 # parameters too: `f_kin` 0.68-0.79 N (true 0.56-0.59), `relax_frac` 0.27-0.39 (0.14), `tau` 5-9 ms
 # (50 ms). Fitted whole (`relaxation2`), with each movement's onset and duration from the motor's
-# reads, the same recording gives `k` 41 +/- 32 N/mm (true 38), `f_kin` 0.592 N (0.587),
+# reads, the same recording gives `k` 41 +/- 32 N/mm (true 38), `f_kin` 0.592 N (0.588),
 # `f_static_excess` 0.275 N (0.276), `tau` 49 ms (50 ms) and `relax_frac` 0.15 (0.14), at R^2 0.9994
 # over eight fitted strokes; the held force it derives, 0.483 +/- 0.003 N, is determined far better
 # than any of the parameters that make it up. The kinetic level falls by `wear` 0.0036 +/- 0.0014
