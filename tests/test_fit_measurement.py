@@ -388,3 +388,40 @@ def test_a_branch_that_no_longer_acts_does_not_make_the_fit_ill_conditioned(shar
     assert res.flags[0].get("tau2") == "singular"
     assert Status(int(res.status[0])) == Status.CONVERGED and res.cond[0] < 1e6
     assert "k" not in res.flags[0] and "f_kin" not in res.flags[0]
+
+
+def test_damping_is_found_where_the_simulator_put_it(simulated):
+    # fitted from the data's guess, viscous damping runs to its lower bound; grown from
+    # relaxation2's optimum with the damping where it acts, "rich" finds it
+    items = [measurement_data(r, "index_x") for r in simulated]
+    truth = np.array([measurement_truth(r, "damping") for r in simulated])
+    grown = fit_measurements(items, model="rich", progress=False)
+    assert grown.model == ["measurement-rich"] * len(items)
+    direct = measurement._fit(items, model=MeasurementModel("rich"), fix=None, u0=None,
+                              max_steps=400, pool_size=16, progress=False)
+    ratio = grown.values["damping"].to_numpy() / truth
+    assert 0.5 < np.median(ratio) < 1.5, ratio
+    assert np.median(direct.values["damping"].to_numpy() / truth) < 0.1
+
+
+def test_auto_grows_rich_only_where_the_static_peak_is_chosen(simulated):
+    items = [measurement_data(r, "index_x") for r in simulated]
+    res = fit_measurements(items, progress=False)
+    table = res.bic_table
+    assert list(table.columns) == [f"measurement-{law}" for law in measurement.AUTO_LAWS]
+    peak = (table["measurement-relaxation2"] < table["measurement-no_peak2"] - 2).to_numpy()
+    assert np.array_equal(np.isfinite(table["measurement-rich"]), peak)
+    for i, law in enumerate(res.model):  # each row the first law within 2 of the best
+        best = np.nanmin(table.iloc[i])
+        first = next(c for c in table.columns if table.at[i, c] <= best + 2)
+        assert law == first
+
+
+def test_rich_without_a_second_fit_and_its_start(simulated):
+    items = [measurement_data(r, "index_x") for r in simulated[:2]]
+    res = fit_measurements(items, model="rich", timing="rig", progress=False)
+    assert all(Status(int(s)) in (Status.CONVERGED, Status.ILL_CONDITIONED) for s in res.status)
+    with pytest.raises(ValueError, match="relaxation2"):
+        fit_measurements(items, model="rich", progress=False,
+                         u0=np.stack([to_unconstrained(MeasurementModel("rich"), d.guess)
+                                      for d in items]))

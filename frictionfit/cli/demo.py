@@ -58,8 +58,9 @@ def demo(
     out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
     channel: str = typer.Option("index_x", help="Channel to fit."),
     model: str = typer.Option("auto", help="Contact law of the whole-measurement fit: auto "
-                              "(with or without a static peak, by BIC), no_peak2, relaxation, "
-                              "relaxation2 or rich."),
+                              "(by BIC: no static peak, a static peak, or a static peak "
+                              "with viscous damping), no_peak2, relaxation, relaxation2 or "
+                              "rich."),
     classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
                                   "and classify the sample data."),
     fitted_features: bool = typer.Option(True, help="Classify with the fitted law's "

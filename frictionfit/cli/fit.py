@@ -22,8 +22,9 @@ def fit(
                                "law, the law's state carried from stroke to stroke. --motions: "
                                "fit every non-preparatory motion x channel on its own, one row "
                                "per trial (single strokes, posteriors, Dask)."),
-    model: str = typer.Option("auto", help="Contact law. Whole: auto (with or without a static "
-                              "peak, by BIC), no_peak2, relaxation, relaxation2 or rich. "
+    model: str = typer.Option("auto", help="Contact law. Whole: auto (by BIC: no static peak, "
+                              "a static peak, or a static peak with viscous damping), "
+                              "no_peak2, relaxation, relaxation2 or rich. "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
                             "fitted for each recording and channel) or session (held at the "

@@ -165,11 +165,11 @@ class PhysicalFeatures(RecordingFeatures):
         raw scales).
     model : str, default "relaxation2"
         Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``), or
-        ``"auto"`` (with or without a static peak, by BIC). One law for every recording
-        keeps the parameters' meaning: with ``"auto"`` on the lab stand-in (70 recordings,
-        sessions 1 and 2), the class values of ``k`` agreed across the two sessions at
-        Pearson 0.27-0.30, with ``relaxation2`` at 0.76 (rig per recording) and 0.97
-        (rig per session).
+        ``"auto"`` (no static peak, a static peak, or one with damping, by BIC). One law
+        for every recording keeps the parameters' meaning: with ``"auto"`` on the lab
+        stand-in (70 recordings, sessions 1 and 2), the class values of ``k`` agreed across
+        the two sessions at Pearson 0.27-0.30, with ``relaxation2`` at 0.76 (rig per
+        recording) and 0.97 (rig per session).
     rig : {"recording", "session"}, default "recording"
         Where the motor's timing is fitted: per recording (its features depend on it
         alone), or once per session: the median over the session's recordings that share

@@ -268,7 +268,16 @@ def stack_items(items: Sequence[MeasurementData], base: np.ndarray):
 
 
 #: The laws ``model="auto"`` chooses from, simplest first.
-AUTO_LAWS = ("no_peak2", "relaxation2")
+AUTO_LAWS = ("no_peak2", "relaxation2", "rich")
+#: Law -> the smaller law whose optimum it is fitted from (last, with that law's drive):
+#: viscous ``damping`` fitted from the data's guess, or with the others far from their
+#: optimum, falls to its lower bound (a log coordinate runs away from where it acts), so
+#: ``rich`` starts from ``relaxation2``'s optimum with the damping at
+#: :data:`DAMPING_START` (docs/decisions.md).
+GROWN_FROM = {"rich": "relaxation2"}
+#: The damping a grown ``rich`` starts from (N s/mm): this fraction of ``f_kin`` over the
+#: movement's mean speed (``stroke_mm / ramp``), a viscous force of ~1 % of the kinetic level.
+DAMPING_START = 0.01
 
 
 def fit_measurements(
@@ -295,14 +304,17 @@ def fit_measurements(
     :attr:`MeasurementData.motor`) and fit again; ``"rig"``: one latency and duration for
     all (but the motor's, where read). ``fix``:
     name -> physical value (one, or one per item) held fixed.
-    ``u0``: unconstrained starting points (of the first law; default: the data's guess).
+    ``u0``: unconstrained starting points (of the first law fitted from the data; default:
+    the data's guess).
     ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
     steps before they converge).
     With a second fit, every law is fitted again on the full grid (the first grid's merged
-    blocks blur a static peak into a fast relaxation) and the law chosen there.
+    blocks blur a static peak into a fast relaxation) and the law chosen there. A law of
+    :data:`GROWN_FROM` is fitted last, from its smaller law's optimum, on the items where
+    that law is chosen (``model="auto"``: ``rich`` where ``relaxation2`` beats ``no_peak2``).
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
-    ``"auto"`` the BIC of every law in ``bic_table``).
+    ``"auto"`` the BIC of every law in ``bic_table``, NaN where a law was not fitted).
 
     The fits use every core by themselves; run several at once in processes, not threads
     (their Jacobian is a host callback, and JAX's CPU callbacks can deadlock when two
@@ -314,39 +326,93 @@ def fit_measurements(
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
+    # the laws fitted from the data: a grown law's smaller one in its place
+    direct = list({_smaller(m).law: _smaller(m) for m in models}.values())
+    if u0 is not None and direct[0].law != models[0].law:
+        raise ValueError(f"{models[0].law!r} is fitted from {direct[0].law!r}'s optimum: give "
+                         f"u0 of that law")
     start = time.perf_counter()
     kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
     again = rig == "session" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
-    firsts = [_fit(coarse, model=models[0], fix=fix, u0=u0, **kw, **loose)]
-    for m in models[1:]:  # each law from the data's guess (or from u0, extended)
-        firsts.append(_fit(coarse, model=m, fix=fix,
+    own = {m.law: _held_of(m, fix) for m in direct}
+    firsts = [_fit(coarse, model=direct[0], fix=own[direct[0].law], u0=u0, **kw, **loose)]
+    for m in direct[1:]:  # each law from the data's guess (or from u0, extended)
+        firsts.append(_fit(coarse, model=m, fix=own[m.law],
                            u0=None if u0 is None else _extended(m, coarse, firsts[-1]), **kw,
                            **loose))
-    first, chosen, bic = _by_bic(models, firsts)
+    first, chosen, bic = _by_bic(direct, firsts)
     held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
-        items = _with_movement_timing(models, chosen, items, first)
-    if again:  # every law again on the full grid, and the law chosen there
-        first, chosen, bic = _by_bic(models, [
-            _fit(items, model=m, u0=np.stack(r.u), tolerances=SECOND_FIT_TOLERANCES,
-                 fix={n: np.broadcast_to(v, (len(items),)) for n, v in held.items()}, **kw)
-            for m, r in zip(models, firsts, strict=True)])
+        items = _with_movement_timing(direct, chosen, items, first)
+    fits = dict(zip([m.law for m in direct], firsts, strict=True))
+    if again:  # every law again on the full grid
+        for m, r in zip(direct, firsts, strict=True):
+            fits[m.law] = _fit(items, model=m, u0=np.stack(r.u), tolerances=SECOND_FIT_TOLERANCES,
+                               **_broadcast(_held_of(m, held), len(items)), **kw)
+    rows = {law: np.arange(len(items)) for law in fits}
+    if any(m.law in GROWN_FROM for m in models):
+        _, chosen, _ = _by_bic(direct, [fits[m.law] for m in direct])
+    for m in models:  # the grown laws, where their smaller law is chosen, from its optimum
+        if m.law in GROWN_FROM:
+            base = GROWN_FROM[m.law]
+            rows[m.law] = np.flatnonzero(chosen == [d.law for d in direct].index(base))
+            smaller = take_trials(fits[base], rows[m.law])
+            grown = [items[i] for i in rows[m.law]]
+            fits[m.law] = smaller if not grown else _fit(
+                grown, model=m, u0=_extended(m, grown, smaller),
+                **_broadcast(held, len(items), rows[m.law]),
+                tolerances=SECOND_FIT_TOLERANCES if again else None, restart=False, **kw)
+    first, chosen, bic = _by_bic(models, [fits[m.law] for m in models],
+                                 [rows[m.law] for m in models])
     first.bic_table = bic if len(models) > 1 else None
     first.wall_s = time.perf_counter() - start
     return first
 
 
-def _by_bic(models: list[MeasurementModel], fits: list[FitResult]
-            ) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
+def _smaller(model: MeasurementModel) -> MeasurementModel:
+    """The law ``model`` is grown from (:data:`GROWN_FROM`; same stroke, the priors on its
+    parameters), or ``model`` itself."""
+    law = GROWN_FROM.get(model.law)
+    if law is None:
+        return model
+    smaller = MeasurementModel(law, model.stroke_mm)
+    if model.priors is None:
+        return smaller
+    return MeasurementModel(law, model.stroke_mm,
+                            tuple(p for p in model.priors if p[0] in smaller.param_names))
+
+
+def _held_of(model: MeasurementModel, fix: Mapping | None) -> dict:
+    """``fix`` without the parameters of the laws grown from ``model`` that it lacks (a
+    name no law has stays, to be reported)."""
+    grown = {n for law, base in GROWN_FROM.items() if base == model.law
+             for n in MeasurementModel(law).param_names}
+    return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in grown}
+
+
+def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
+    """``fix=`` for :func:`_fit`: each held value as one per item (of ``n``), of ``rows``."""
+    pick = slice(None) if rows is None else rows
+    return {"fix": {name: np.broadcast_to(v, (n,))[pick] for name, v in fix.items()}}
+
+
+def _by_bic(models: list[MeasurementModel], fits: list[FitResult],
+            rows: list[np.ndarray] | None = None) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
     """Per item, the fit of the first law whose BIC is within ``BIC_TIE`` of the best (one
-    fit of each law in ``fits``); the law's index per item; the BIC table."""
-    bic = pd.DataFrame({m.name: r.bic for m, r in zip(models, fits, strict=True)})
+    fit of each law in ``fits``, of the items ``rows``: default all); the law's index per
+    item; the BIC table (NaN where a law was not fitted)."""
+    rows = rows or [np.arange(fits[0].n_trials)] * len(fits)
+    n = max(at.max(initial=-1) for at in rows) + 1
+    bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})
+    for m, r, at in zip(models, fits, rows, strict=True):
+        bic.loc[at, m.name] = r.bic
     chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
-    return (_in_order([take_trials(r, np.flatnonzero(chosen == j)) for j, r in enumerate(fits)],
-                      chosen), chosen, bic)
+    where = [np.searchsorted(at, np.flatnonzero(chosen == j)) for j, at in enumerate(rows)]
+    return (_in_order([take_trials(r, w) for r, w in zip(fits, where, strict=True)], chosen),
+            chosen, bic)
 
 
 #: Fewest usable blocks for a motion to be refitted on its own (a motion has ~700).
@@ -402,6 +468,8 @@ def _extended(model: MeasurementModel, items: Sequence[MeasurementData], smaller
         start = d.guess | v
         if "f_static_excess" not in v:  # a small peak on top of the kinetic level found
             start["f_static_excess"] = 0.1 * v["f_kin"]
+        if "damping" not in v:  # where it acts: see DAMPING_START
+            start["damping"] = DAMPING_START * v["f_kin"] * v["ramp"] / model.stroke_mm
         starts.append(to_unconstrained(model, start))
     return np.stack(starts)
 
@@ -539,12 +607,15 @@ SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 
 
 def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
-         tolerances: Mapping[str, float] | None = None, final: bool = True) -> FitResult:
+         tolerances: Mapping[str, float] | None = None, final: bool = True,
+         restart: bool = True) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
     ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
     of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults. ``final=False``
     (a fit another one polishes): no derived quantities, and the "trades off" flags are
     not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
+    ``restart=False``: no slow branch solved again (:func:`_slow_branch_restarted`; for
+    fits started from an optimum where it was).
 
     The pools run in one host thread: the contact simulation's Jacobian is a host
     callback (:mod:`frictionfit.models._forward`) that shares its rows over the cores
@@ -584,7 +655,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     show = (None if len(items) >= 16 else True) if progress is None else not progress
     with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
         u, code, steps, at_solution, again = solve(base, np.arange(len(items)), bar)
-    if branches:
+    if branches and restart:
         again |= _slow_branch_restarted(model, items, solve, u, code, steps, at_solution)
     resid, jtj = _at_optimum(model, free, u[:, free], data, at_solution["jtj"], again)
     weight = data[1]
