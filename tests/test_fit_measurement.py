@@ -425,3 +425,17 @@ def test_rich_without_a_second_fit_and_its_start(simulated):
         fit_measurements(items, model="rich", progress=False,
                          u0=np.stack([to_unconstrained(MeasurementModel("rich"), d.guess)
                                       for d in items]))
+
+
+def test_a_measured_static_peak_rules_out_the_law_without_one(simulated):
+    items = [measurement_data(r, "index_x") for r in simulated[:3]]
+    models = [MeasurementModel("no_peak2"), MeasurementModel("relaxation2")]
+    smaller, peak = (fit_measurements(items, model=m, progress=False) for m in models)
+    z = (peak.values["f_static_excess"] / peak.stderr["f_static_excess"]).to_numpy()
+    assert np.all(z > measurement.PEAK_Z)  # every simulated material has a static peak
+    cheaper = dataclasses.replace(smaller, bic=peak.bic - 100.0)  # the BIC prefers no peak
+    _, chosen, table = measurement._by_bic(models, [cheaper, peak])
+    assert np.all(chosen == 1) and np.all(table.iloc[:, 0] < table.iloc[:, 1])
+    faint = dataclasses.replace(peak, stderr=peak.stderr * 1e3)  # a peak within its noise
+    _, chosen, _ = measurement._by_bic(models, [cheaper, faint])
+    assert np.all(chosen == 0)

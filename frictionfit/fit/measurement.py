@@ -399,17 +399,34 @@ def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
     return {"fix": {name: np.broadcast_to(v, (n,))[pick] for name, v in fix.items()}}
 
 
+#: A fitted static peak this many standard errors above zero rules out the laws without one
+#: for that item, whatever their BIC: the BIC's AR(1) deviance scores the residuals'
+#: innovations, and a missing peak is a smooth misfit that a lag-1 coefficient near 1
+#: absorbs (docs/decisions.md).
+PEAK_Z = 3.0
+
+
 def _by_bic(models: list[MeasurementModel], fits: list[FitResult],
             rows: list[np.ndarray] | None = None) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
     """Per item, the fit of the first law whose BIC is within ``BIC_TIE`` of the best (one
-    fit of each law in ``fits``, of the items ``rows``: default all); the law's index per
+    fit of each law in ``fits``, of the items ``rows``: default all), a law without a static
+    peak only where no law's peak is :data:`PEAK_Z` stderr above zero; the law's index per
     item; the BIC table (NaN where a law was not fitted)."""
     rows = rows or [np.arange(fits[0].n_trials)] * len(fits)
     n = max(at.max(initial=-1) for at in rows) + 1
     bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})
+    peak = np.zeros(n, bool)
     for m, r, at in zip(models, fits, rows, strict=True):
         bic.loc[at, m.name] = r.bic
-    chosen = np.array([list(bic.columns).index(name) for name in choose(bic)])
+        if "f_static_excess" in m.param_names and r.n_trials:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                z = (r.values["f_static_excess"] / r.stderr["f_static_excess"]).to_numpy()
+            peak[at] |= z > PEAK_Z
+    eligible = bic.copy()
+    for m in models:
+        if "f_static_excess" not in m.param_names:
+            eligible.loc[peak, m.name] = np.nan
+    chosen = np.array([list(bic.columns).index(name) for name in choose(eligible)])
     where = [np.searchsorted(at, np.flatnonzero(chosen == j)) for j, at in enumerate(rows)]
     return (_in_order([take_trials(r, w) for r, w in zip(fits, where, strict=True)], chosen),
             chosen, bic)
