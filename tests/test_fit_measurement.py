@@ -338,8 +338,13 @@ def test_a_slow_branch_pinned_at_its_bound_is_solved_again(simulated, monkeypatc
 
 
 def test_fix_rejects_unknown_parameters(simulated):
+    item = [measurement_data(simulated[0], "index_x")]
     with pytest.raises(ValueError, match="cannot fix"):
-        fit_measurements([measurement_data(simulated[0], "index_x")], fix={"wobble": 1.0})
+        fit_measurements(item, fix={"wobble": 1.0})
+    with pytest.raises(ValueError, match="cannot fix"):  # a parameter of another law
+        fit_measurements(item, model="relaxation2", fix={"damping": 1e-3})
+    held = fit_measurements(item, model="rich", fix={"damping": 1e-3}, progress=False)
+    assert held.values["damping"][0] == pytest.approx(1e-3)
 
 
 def test_fitted_features_follow_the_sklearn_contract():

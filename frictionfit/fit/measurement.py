@@ -337,7 +337,7 @@ def fit_measurements(
     coarse = [_halved(d) for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
-    own = {m.law: _held_of(m, fix) for m in direct}
+    own = {m.law: _held_of(m, fix, models) for m in direct}
     firsts = [_fit(coarse, model=direct[0], fix=own[direct[0].law], u0=u0, **kw, **loose)]
     for m in direct[1:]:  # each law from the data's guess (or from u0, extended)
         firsts.append(_fit(coarse, model=m, fix=own[m.law],
@@ -351,7 +351,7 @@ def fit_measurements(
     if again:  # every law again on the full grid
         for m, r in zip(direct, firsts, strict=True):
             fits[m.law] = _fit(items, model=m, u0=np.stack(r.u), tolerances=SECOND_FIT_TOLERANCES,
-                               **_broadcast(_held_of(m, held), len(items)), **kw)
+                               **_broadcast(_held_of(m, held, models), len(items)), **kw)
     rows = {law: np.arange(len(items)) for law in fits}
     if any(m.law in GROWN_FROM for m in models):
         _, chosen, _ = _by_bic(direct, [fits[m.law] for m in direct])
@@ -385,11 +385,11 @@ def _smaller(model: MeasurementModel) -> MeasurementModel:
                             tuple(p for p in model.priors if p[0] in smaller.param_names))
 
 
-def _held_of(model: MeasurementModel, fix: Mapping | None) -> dict:
-    """``fix`` without the parameters of the laws grown from ``model`` that it lacks (a
-    name no law has stays, to be reported)."""
-    grown = {n for law, base in GROWN_FROM.items() if base == model.law
-             for n in MeasurementModel(law).param_names}
+def _held_of(model: MeasurementModel, fix: Mapping | None,
+             models: Sequence[MeasurementModel]) -> dict:
+    """``fix`` without the parameters that ``model`` lacks and a law of ``models`` grown from
+    it has (any other name stays, to be reported)."""
+    grown = {n for m in models if GROWN_FROM.get(m.law) == model.law for n in m.param_names}
     return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in grown}
 
 
