@@ -354,7 +354,7 @@ def fit_measurements(
                                **_broadcast(_held_of(m, held, models), len(items)), **kw)
     rows = {law: np.arange(len(items)) for law in fits}
     if any(m.law in GROWN_FROM for m in models):
-        _, chosen, _ = _by_bic(direct, [fits[m.law] for m in direct])
+        chosen, _ = _choice(direct, [fits[m.law] for m in direct], [rows[m.law] for m in direct])
     for m in models:  # the grown laws, where their smaller law is chosen, from its optimum
         if m.law in GROWN_FROM:
             base = GROWN_FROM[m.law]
@@ -406,13 +406,12 @@ def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
 PEAK_Z = 3.0
 
 
-def _by_bic(models: list[MeasurementModel], fits: list[FitResult],
-            rows: list[np.ndarray] | None = None) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
-    """Per item, the fit of the first law whose BIC is within ``BIC_TIE`` of the best (one
-    fit of each law in ``fits``, of the items ``rows``: default all), a law without a static
-    peak only where no law's peak is :data:`PEAK_Z` stderr above zero; the law's index per
-    item; the BIC table (NaN where a law was not fitted)."""
-    rows = rows or [np.arange(fits[0].n_trials)] * len(fits)
+def _choice(models: list[MeasurementModel], fits: list[FitResult], rows: list[np.ndarray]
+            ) -> tuple[np.ndarray, pd.DataFrame]:
+    """Per item, the index of the first law whose BIC is within ``BIC_TIE`` of the best (one
+    fit of each law in ``fits``, of the items ``rows``), a law without a static peak only
+    where no law's peak is :data:`PEAK_Z` stderr above zero; and the BIC table (NaN where a
+    law was not fitted)."""
     n = max(at.max(initial=-1) for at in rows) + 1
     bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})
     peak = np.zeros(n, bool)
@@ -426,7 +425,15 @@ def _by_bic(models: list[MeasurementModel], fits: list[FitResult],
     for m in models:
         if "f_static_excess" not in m.param_names:
             eligible.loc[peak, m.name] = np.nan
-    chosen = np.array([list(bic.columns).index(name) for name in choose(eligible)])
+    return np.array([list(bic.columns).index(name) for name in choose(eligible)]), bic
+
+
+def _by_bic(models: list[MeasurementModel], fits: list[FitResult],
+            rows: list[np.ndarray] | None = None) -> tuple[FitResult, np.ndarray, pd.DataFrame]:
+    """Per item, the fit of the law :func:`_choice` picks (``rows``: the items each fit is
+    of; default all); the law's index per item; the BIC table."""
+    rows = rows or [np.arange(fits[0].n_trials)] * len(fits)
+    chosen, bic = _choice(models, fits, rows)
     where = [np.searchsorted(at, np.flatnonzero(chosen == j)) for j, at in enumerate(rows)]
     return (_in_order([take_trials(r, w) for r, w in zip(fits, where, strict=True)], chosen),
             chosen, bic)
