@@ -156,7 +156,10 @@ def test_rub_records_the_servo_position(tmp_path):
     from fake_dynamixel import FakeDynamixel
 
     with FakeDynamixel(position=1000, speed=2000.0) as servo:
-        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200", "--position-rate", "100")
+        # dwell 0.4 s: each hold keeps ~0.28 s of reads after the move, so a busy machine
+        # that stalls the reading thread for a few tens of ms still leaves some in it
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200", "--position-rate", "100",
+                                    "--dwell", "0.4")
     assert result.exit_code == 0, result.output
     t, x = rec.motor_positions()
     assert len(t) == servo.position_reads and rec.extra["motor_positions"]["reads_failed"] == 0
