@@ -7,6 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -409,6 +410,12 @@ def test_damping_is_found_where_the_simulator_put_it(simulated):
     assert np.median(direct.values["damping"].to_numpy() / truth) < 0.1
 
 
+def _first_within_tie(table: pd.DataFrame) -> list[str]:
+    """Per row, the first law whose BIC (of those fitted) is within 2 of the row's best."""
+    rows = (row.dropna() for _, row in table.iterrows())
+    return [next(c for c in row.index if row[c] <= row.min() + 2) for row in rows]
+
+
 def test_auto_grows_rich_only_where_the_static_peak_is_chosen(simulated):
     items = [measurement_data(r, "index_x") for r in simulated]
     res = fit_measurements(items, progress=False)
@@ -416,12 +423,32 @@ def test_auto_grows_rich_only_where_the_static_peak_is_chosen(simulated):
     assert list(table.columns) == [f"measurement-{law}" for law in measurement.AUTO_LAWS]
     peak = np.isin(res.model, ["measurement-relaxation2", "measurement-rich"])
     assert np.array_equal(np.isfinite(table["measurement-rich"]), peak)
-    for i, law in enumerate(res.model):  # each row the first law within 2 of the best;
-        row = table.iloc[i].dropna()  # a law with a peak: by the BIC or a measured peak
-        if law != "measurement-no_peak2":
-            row = row.drop("measurement-no_peak2")
-        first = next(c for c in row.index if row[c] <= row.min() + 2)
-        assert law == first
+    assert res.model == _first_within_tie(table)
+
+
+def test_auto_fits_the_law_without_a_peak_only_where_no_peak_is_measured(simulated, shared,
+                                                                          monkeypatch):
+    lab = shared / "datasets" / "rubbing-lab"
+    items = [measurement_data(r, "index_x") for r in simulated[:2]] + [
+        measurement_data(read_recording(lab / f"{name}.csv"), channel)
+        for name, channel in (("s1_banknote-1_03", "thumb_x"), ("s1_basket-1_01", "index_x"))]
+    calls, fit = [], measurement._fit
+
+    def spy(at, **kw):
+        calls.append((kw["model"].law, fit(at, **kw)))
+        return calls[-1][1]
+
+    monkeypatch.setattr(measurement, "_fit", spy)
+    res = fit_measurements(items, progress=False)
+    assert [law for law, _ in calls] == ["relaxation2", "relaxation2", "no_peak2", "rich"]
+    larger = calls[1][1]
+    z = (larger.values["f_static_excess"] / larger.stderr["f_static_excess"]).to_numpy()
+    assert 0 < np.sum(z <= measurement.PEAK_Z) < len(items)  # both kinds of item
+    table = res.bic_table
+    assert np.array_equal(np.isfinite(table["measurement-no_peak2"]), z <= measurement.PEAK_Z)
+    peak = np.isin(res.model, ["measurement-relaxation2", "measurement-rich"])
+    assert np.array_equal(np.isfinite(table["measurement-rich"]), peak)
+    assert res.model == _first_within_tie(table)
 
 
 def test_rich_without_a_second_fit_and_its_start(simulated):

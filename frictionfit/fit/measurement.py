@@ -269,14 +269,17 @@ def stack_items(items: Sequence[MeasurementData], base: np.ndarray):
 
 #: The laws ``model="auto"`` chooses from, simplest first.
 AUTO_LAWS = ("no_peak2", "relaxation2", "rich")
-#: Law -> the smaller law whose optimum it is fitted from (last, with that law's drive):
-#: viscous ``damping`` fitted from the data's guess, or with the others far from their
-#: optimum, falls to its lower bound (a log coordinate runs away from where it acts), so
-#: ``rich`` starts from ``relaxation2``'s optimum with the damping at
-#: :data:`DAMPING_START` (docs/decisions.md).
+#: Law -> the smaller law whose optimum it is fitted from (with that law's drive): viscous
+#: ``damping`` fitted from the data's guess, or with the others far from their optimum,
+#: falls to its lower bound (a log coordinate runs away from where it acts), so ``rich``
+#: starts from ``relaxation2``'s optimum with the damping at :data:`DAMPING_START`
+#: (docs/decisions.md).
 GROWN_FROM = {"rich": "relaxation2"}
-#: The damping a grown ``rich`` starts from (N s/mm): this fraction of ``f_kin`` over the
-#: movement's mean speed (``stroke_mm / ramp``), a viscous force of ~1 % of the kinetic level.
+#: Law -> the larger law whose optimum it is fitted from where both are chosen from: the
+#: law without a static peak is ``relaxation2`` at ``f_static_excess = 0``, so it is fitted
+#: only where ``relaxation2``'s peak is not measured (:data:`PEAK_Z`), from that optimum
+#: (docs/decisions.md).
+SHRUNK_FROM = {"no_peak2": "relaxation2"}
 DAMPING_START = 0.01
 
 
@@ -304,14 +307,16 @@ def fit_measurements(
     :attr:`MeasurementData.motor`) and fit again; ``"rig"``: one latency and duration for
     all (but the motor's, where read). ``fix``:
     name -> physical value (one, or one per item) held fixed.
-    ``u0``: unconstrained starting points (of the first law fitted from the data; default:
-    the data's guess).
+    ``u0``: unconstrained starting points of the law fitted from the data (default: the
+    data's guess).
     ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
     steps before they converge).
-    With a second fit, every law is fitted again on the full grid (the first grid's merged
-    blocks blur a static peak into a fast relaxation) and the law chosen there. A law of
-    :data:`GROWN_FROM` is fitted last, from its smaller law's optimum, on the items where
-    that law is chosen (``model="auto"``: ``rich`` where ``relaxation2`` beats ``no_peak2``).
+    One law is fitted from the data (``"auto"``: ``relaxation2``), with a second fit on the
+    full grid (the first grid's merged blocks blur a static peak into a fast relaxation).
+    Each other law is fitted from an optimum on the items where it can still be chosen:
+    ``no_peak2`` (:data:`SHRUNK_FROM`) from ``relaxation2``'s where its static peak is not
+    measured, then ``rich`` (:data:`GROWN_FROM`) from ``relaxation2``'s where that law is
+    chosen.
     Returns a :class:`FitResult` with one row per item (values in physical units,
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``, NaN where a law was not fitted).
@@ -326,45 +331,44 @@ def fit_measurements(
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
-    # the laws fitted from the data: a grown law's smaller one in its place
-    direct = list({_smaller(m).law: _smaller(m) for m in models}.values())
-    if u0 is not None and direct[0].law != models[0].law:
-        raise ValueError(f"{models[0].law!r} is fitted from {direct[0].law!r}'s optimum: give "
-                         f"u0 of that law")
+    origin = {m.law: _origin(m, models) for m in models}
+    base = next(origin[m.law] or m for m in models)  # the law fitted from the data
+    if u0 is not None and np.shape(u0)[-1] != base.n_params:
+        raise ValueError(f"u0 must hold the {base.n_params} parameters of {base.law!r} (the "
+                         f"law fitted from the data), not {np.shape(u0)[-1]}")
     start = time.perf_counter()
     kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
     again = rig == "session" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
-    own = {m.law: _held_of(m, fix, models) for m in direct}
-    firsts = [_fit(coarse, model=direct[0], fix=own[direct[0].law], u0=u0, **kw, **loose)]
-    for m in direct[1:]:  # each law from the data's guess (or from u0, extended)
-        firsts.append(_fit(coarse, model=m, fix=own[m.law],
-                           u0=None if u0 is None else _extended(m, coarse, firsts[-1]), **kw,
-                           **loose))
-    first, chosen, bic = _by_bic(direct, firsts)
+    first = _fit(coarse, model=base, fix=_held_of(base, fix, models), u0=u0, **kw, **loose)
     held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
-        items = _with_movement_timing(direct, chosen, items, first)
-    fits = dict(zip([m.law for m in direct], firsts, strict=True))
-    if again:  # every law again on the full grid
-        for m, r in zip(direct, firsts, strict=True):
-            fits[m.law] = _fit(items, model=m, u0=np.stack(r.u), tolerances=SECOND_FIT_TOLERANCES,
-                               **_broadcast(_held_of(m, held, models), len(items)), **kw)
-    rows = {law: np.arange(len(items)) for law in fits}
-    if any(m.law in GROWN_FROM for m in models):
-        chosen, _ = _choice(direct, [fits[m.law] for m in direct], [rows[m.law] for m in direct])
-    for m in models:  # the grown laws, where their smaller law is chosen, from its optimum
-        if m.law in GROWN_FROM:
-            base = GROWN_FROM[m.law]
-            rows[m.law] = np.flatnonzero(chosen == [d.law for d in direct].index(base))
-            smaller = take_trials(fits[base], rows[m.law])
-            grown = [items[i] for i in rows[m.law]]
-            fits[m.law] = smaller if not grown else _fit(
-                grown, model=m, u0=_extended(m, grown, smaller),
-                **_broadcast(held, len(items), rows[m.law]),
-                tolerances=SECOND_FIT_TOLERANCES if again else None, restart=False, **kw)
+        items = _with_movement_timing(base, items, first)
+    fits = {base.law: first}
+    if again:  # again on the full grid
+        fits[base.law] = _fit(items, model=base, u0=np.stack(first.u),
+                              tolerances=SECOND_FIT_TOLERANCES,
+                              **_broadcast(_held_of(base, held, models), len(items)), **kw)
+    rows = {base.law: np.arange(len(items))}
+    for m in models:  # the other laws, from their origin's optimum, where they can be chosen
+        if m.law in fits:
+            continue
+        done = [d for d in (*models, base) if d.law in fits]
+        fitted = [fits[d.law] for d in done]
+        chosen, _ = _choice(done, fitted, [rows[d.law] for d in done])
+        can = chosen == [d.law for d in done].index(origin[m.law].law)
+        if "f_static_excess" not in m.param_names:
+            can &= ~_peak_measured(done, fitted, [rows[d.law] for d in done], len(items))
+        rows[m.law] = np.flatnonzero(can)
+        start_fit = take_trials(fits[origin[m.law].law], rows[m.law])
+        at = [items[i] for i in rows[m.law]]
+        fits[m.law] = start_fit if not at else _fit(
+            at, model=m, u0=_from_optimum(m, at, start_fit),
+            **_broadcast(_held_of(m, held, models), len(items), rows[m.law]),
+            tolerances=SECOND_FIT_TOLERANCES if again else None,
+            restart=m.law not in GROWN_FROM, **kw)
     first, chosen, bic = _by_bic(models, [fits[m.law] for m in models],
                                  [rows[m.law] for m in models])
     first.bic_table = bic if len(models) > 1 else None
@@ -372,12 +376,17 @@ def fit_measurements(
     return first
 
 
-def _smaller(model: MeasurementModel) -> MeasurementModel:
-    """The law ``model`` is grown from (:data:`GROWN_FROM`; same stroke, the priors on its
-    parameters), or ``model`` itself."""
+def _origin(model: MeasurementModel, models: Sequence[MeasurementModel]
+            ) -> MeasurementModel | None:
+    """The law whose optimum ``model`` is fitted from (:data:`GROWN_FROM`: same stroke, the
+    priors on its parameters; :data:`SHRUNK_FROM`, where that law is among ``models``), or
+    ``None`` (fitted from the data)."""
+    larger = [m for m in models if m.law == SHRUNK_FROM.get(model.law)]
+    if larger:
+        return larger[0]
     law = GROWN_FROM.get(model.law)
     if law is None:
-        return model
+        return None
     smaller = MeasurementModel(law, model.stroke_mm)
     if model.priors is None:
         return smaller
@@ -406,21 +415,30 @@ def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
 PEAK_Z = 3.0
 
 
-def _choice(models: list[MeasurementModel], fits: list[FitResult], rows: list[np.ndarray]
-            ) -> tuple[np.ndarray, pd.DataFrame]:
-    """Per item, the index of the first law whose BIC is within ``BIC_TIE`` of the best (one
-    fit of each law in ``fits``, of the items ``rows``), a law without a static peak only
-    where no law's peak is :data:`PEAK_Z` stderr above zero; and the BIC table (NaN where a
-    law was not fitted)."""
-    n = max(at.max(initial=-1) for at in rows) + 1
-    bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})
+def _peak_measured(models: list[MeasurementModel], fits: list[FitResult],
+                   rows: list[np.ndarray], n: int) -> np.ndarray:
+    """Per item (of ``n``), whether a fitted ``f_static_excess`` (one fit of each law in
+    ``fits``, of the items ``rows``) stands :data:`PEAK_Z` stderr above zero."""
     peak = np.zeros(n, bool)
     for m, r, at in zip(models, fits, rows, strict=True):
-        bic.loc[at, m.name] = r.bic
         if "f_static_excess" in m.param_names and r.n_trials:
             with np.errstate(invalid="ignore", divide="ignore"):
                 z = (r.values["f_static_excess"] / r.stderr["f_static_excess"]).to_numpy()
             peak[at] |= z > PEAK_Z
+    return peak
+
+
+def _choice(models: list[MeasurementModel], fits: list[FitResult], rows: list[np.ndarray]
+            ) -> tuple[np.ndarray, pd.DataFrame]:
+    """Per item, the index of the first law whose BIC is within ``BIC_TIE`` of the best (one
+    fit of each law in ``fits``, of the items ``rows``), a law without a static peak only
+    where no law's peak is measured (:func:`_peak_measured`); and the BIC table (NaN where a
+    law was not fitted)."""
+    n = max(at.max(initial=-1) for at in rows) + 1
+    bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})
+    for m, r, at in zip(models, fits, rows, strict=True):
+        bic.loc[at, m.name] = r.bic
+    peak = _peak_measured(models, fits, rows, n)
     eligible = bic.copy()
     for m in models:
         if "f_static_excess" not in m.param_names:
@@ -482,17 +500,15 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
     return concat_results(parts), np.array(item_of), np.array(motion_of)
 
 
-def _extended(model: MeasurementModel, items: Sequence[MeasurementData], smaller: FitResult
-              ) -> np.ndarray:
-    """Starting points of ``model``: the smaller law's optimum where it has the parameter,
-    the data's guess elsewhere (unconstrained)."""
+def _from_optimum(model: MeasurementModel, items: Sequence[MeasurementData], other: FitResult
+                  ) -> np.ndarray:
+    """Starting points of ``model``: another law's optimum where it has the parameter, the
+    data's guess elsewhere, a damping where it acts (:data:`DAMPING_START`); unconstrained."""
     starts = []
     for i, d in enumerate(items):
-        v = smaller.params(i)
+        v = other.params(i)
         start = d.guess | v
-        if "f_static_excess" not in v:  # a small peak on top of the kinetic level found
-            start["f_static_excess"] = 0.1 * v["f_kin"]
-        if "damping" not in v:  # where it acts: see DAMPING_START
+        if "damping" in model.param_names and "damping" not in v:
             start["damping"] = DAMPING_START * v["f_kin"] * v["ramp"] / model.stroke_mm
         starts.append(to_unconstrained(model, start))
     return np.stack(starts)
@@ -590,16 +606,15 @@ def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
     return commands, np.where(seen, stretch, 1.0)
 
 
-def _with_movement_timing(models: list[MeasurementModel], chosen: np.ndarray,
-                          items: Sequence[MeasurementData], result: FitResult
-                          ) -> list[MeasurementData]:
+def _with_movement_timing(model: MeasurementModel, items: Sequence[MeasurementData],
+                          result: FitResult) -> list[MeasurementData]:
     """Items whose drive carries each movement's own onset and duration: the motor's where
-    it was read (kept as it is), else :func:`_movement_timing` at the first fit's optimum of
-    the item's chosen model (items in host threads, one per core)."""
+    it was read (kept as it is), else :func:`_movement_timing` at the first fit's optimum
+    (items in host threads, one per core)."""
     def timed(i):
         if items[i].motor is not None:
             return items[i]
-        commands, stretch = _movement_timing(models[chosen[i]], result.u[i], items[i])
+        commands, stretch = _movement_timing(model, result.u[i], items[i])
         return replace(items[i], commands=commands, stretch=stretch)
 
     with ThreadPoolExecutor(max_workers=available_cores()) as pool:
