@@ -473,3 +473,6 @@ def test_a_measured_static_peak_rules_out_the_law_without_one(simulated):
     faint = dataclasses.replace(peak, stderr=peak.stderr * 1e3)  # a peak within its noise
     _, chosen, _ = measurement._by_bic(models, [cheaper, faint])
     assert np.all(chosen == 0)
+    on_bound = dataclasses.replace(peak, stderr=peak.stderr * 0.0)  # no width: not measured
+    _, chosen, _ = measurement._by_bic(models, [cheaper, on_bound])
+    assert np.all(chosen == 0)

@@ -418,13 +418,14 @@ PEAK_Z = 3.0
 def _peak_measured(models: list[MeasurementModel], fits: list[FitResult],
                    rows: list[np.ndarray], n: int) -> np.ndarray:
     """Per item (of ``n``), whether a fitted ``f_static_excess`` (one fit of each law in
-    ``fits``, of the items ``rows``) stands :data:`PEAK_Z` stderr above zero."""
+    ``fits``, of the items ``rows``) stands :data:`PEAK_Z` stderr above zero; a peak on
+    its bound (no width: stderr 0) is not measured."""
     peak = np.zeros(n, bool)
     for m, r, at in zip(models, fits, rows, strict=True):
         if "f_static_excess" in m.param_names and r.n_trials:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                z = (r.values["f_static_excess"] / r.stderr["f_static_excess"]).to_numpy()
-            peak[at] |= z > PEAK_Z
+            value, stderr = (np.asarray(r.values["f_static_excess"]),
+                             np.asarray(r.stderr["f_static_excess"]))
+            peak[at] |= (stderr > 0) & (value > PEAK_Z * stderr)
     return peak
 
 
