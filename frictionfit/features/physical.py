@@ -166,10 +166,11 @@ class PhysicalFeatures(RecordingFeatures):
     model : str, default "relaxation2"
         Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``), or
         ``"auto"`` (no static peak, a static peak, or one with damping, by BIC). One law
-        for every recording keeps the parameters' meaning: on the lab stand-in (sessions
-        1-3, 840 channels), the classes' median log ``f_kin`` agree between two sessions at
-        a mean Pearson 0.69 (``index_x``) and 0.76 (``thumb_x``) with ``"auto"``, 0.87 and
-        0.79 with ``relaxation2``; ``k`` at 0.87 / 0.65 and 0.87 / 0.71.
+        for every recording keeps the parameters' meaning (every recording has the same
+        ones); on the lab stand-in (sessions 1-3, 840 channels) both measure the classes
+        alike: their median log ``f_kin`` agree between two sessions at a mean Pearson
+        0.77 (``index_x``) and 0.75 (``thumb_x``) with ``relaxation2``, 0.76 and 0.77 with
+        ``"auto"``; ``k`` at 0.87 / 0.73 and 0.86 / 0.71.
     rig : {"recording", "session"}, default "recording"
         Where the motor's timing is fitted: per recording (its features depend on it
         alone), or once per session: the median over the session's recordings that share
