@@ -431,7 +431,8 @@ def test_auto_fits_the_law_without_a_peak_only_where_no_peak_is_measured(simulat
     lab = shared / "datasets" / "rubbing-lab"
     items = [measurement_data(r, "index_x") for r in simulated[:2]] + [
         measurement_data(read_recording(lab / f"{name}.csv"), channel)
-        for name, channel in (("s1_banknote-1_03", "thumb_x"), ("s1_basket-1_01", "index_x"))]
+        for name, channel in (("s1_banknote-1_03", "thumb_x"), ("s1_basket-1_01", "index_x"),
+                              ("s2_carpet-1_02", "thumb_x"))]
     calls, fit = [], measurement._fit
 
     def spy(at, **kw):
@@ -441,11 +442,15 @@ def test_auto_fits_the_law_without_a_peak_only_where_no_peak_is_measured(simulat
     monkeypatch.setattr(measurement, "_fit", spy)
     res = fit_measurements(items, progress=False)
     assert [law for law, _ in calls] == ["relaxation2", "relaxation2", "no_peak2", "rich"]
-    larger = calls[1][1]
+    larger, smaller = calls[1][1], calls[2][1]
     z = (larger.values["f_static_excess"] / larger.stderr["f_static_excess"]).to_numpy()
-    assert 0 < np.sum(z <= measurement.PEAK_Z) < len(items)  # both kinds of item
+    fitted = z <= measurement.PEAK_Z
+    assert 0 < np.sum(fitted) < len(items)  # both kinds of item
     table = res.bic_table
-    assert np.array_equal(np.isfinite(table["measurement-no_peak2"]), z <= measurement.PEAK_Z)
+    assert np.array_equal(np.isfinite(table["measurement-no_peak2"]), fitted)
+    # without a peak that weakens over many strokes, its force moves to the kinetic level
+    # (the last item's 1.2-N peak weakens over 9 mm): the fit ends near the larger one's
+    np.testing.assert_array_less(smaller.chi2, 1.1 * larger.chi2[fitted])
     peak = np.isin(res.model, ["measurement-relaxation2", "measurement-rich"])
     assert np.array_equal(np.isfinite(table["measurement-rich"]), peak)
     assert res.model == _first_within_tie(table)

@@ -278,7 +278,7 @@ GROWN_FROM = {"rich": "relaxation2"}
 #: Law -> the larger law whose optimum it is fitted from where both are chosen from: the
 #: law without a static peak is ``relaxation2`` at ``f_static_excess = 0``, so it is fitted
 #: only where ``relaxation2``'s peak is not measured (:data:`PEAK_Z`), from that optimum
-#: (docs/decisions.md).
+#: with the peak's mean share over a stroke moved into the kinetic level (docs/decisions.md).
 SHRUNK_FROM = {"no_peak2": "relaxation2"}
 DAMPING_START = 0.01
 
@@ -504,15 +504,27 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
 def _from_optimum(model: MeasurementModel, items: Sequence[MeasurementData], other: FitResult
                   ) -> np.ndarray:
     """Starting points of ``model``: another law's optimum where it has the parameter, the
-    data's guess elsewhere, a damping where it acts (:data:`DAMPING_START`); unconstrained."""
+    data's guess elsewhere, a damping where it acts (:data:`DAMPING_START`), a static excess
+    dropped into the kinetic level by its mean share (:func:`_mean_weakening`);
+    unconstrained."""
     starts = []
     for i, d in enumerate(items):
         v = other.params(i)
         start = d.guess | v
         if "damping" in model.param_names and "damping" not in v:
             start["damping"] = DAMPING_START * v["f_kin"] * v["ramp"] / model.stroke_mm
+        if "f_static_excess" in v and "f_static_excess" not in model.param_names:
+            start["f_kin"] = v["f_kin"] + v["f_static_excess"] * _mean_weakening(
+                v["slip_length"], model.stroke_mm)
         starts.append(to_unconstrained(model, start))
     return np.stack(starts)
+
+
+def _mean_weakening(slip_length, stroke_mm: float):
+    """Mean of ``exp(-s / slip_length)`` over a stroke's slip ``s`` in ``[0, stroke_mm]``:
+    the share of the static excess a law without it carries in its kinetic level."""
+    ratio = stroke_mm / slip_length
+    return -np.expm1(-ratio) / ratio
 
 
 def _halved(d: MeasurementData) -> MeasurementData:
