@@ -175,7 +175,9 @@ def _write(frame, out: Path, rows: str, wall_s: float) -> None:
     else:
         frame.to_csv(out, index=False)
     counts = frame["status"].value_counts().to_dict()
-    typer.echo(f"{len(frame)} {rows} in {wall_s:.1f} s; status {counts}; wrote {out}")
+    models = frame["model"].value_counts().to_dict()
+    typer.echo(f"{len(frame)} {rows} in {wall_s:.1f} s; status {counts}; models {models}; "
+               f"wrote {out}")
 
 
 def _usable(f: Path):

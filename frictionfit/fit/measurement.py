@@ -705,7 +705,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
 
     # a bar on a terminal only (tqdm's None), for batches long enough to wait for
     show = (None if len(items) >= 16 else True) if progress is None else not progress
-    with tqdm(total=len(items), desc="fit", unit="rec", disable=show) as bar:
+    desc = model.law if final else f"{model.law}, first pass"
+    with tqdm(total=len(items), desc=desc, unit="rec", disable=show) as bar:
         u, code, steps, at_solution, again = solve(base, np.arange(len(items)), bar)
     if branches and restart:
         again |= _slow_branch_restarted(model, items, solve, u, code, steps, at_solution)
