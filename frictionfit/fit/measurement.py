@@ -280,6 +280,8 @@ GROWN_FROM = {"rich": "relaxation2"}
 #: only where ``relaxation2``'s peak is not measured (:data:`PEAK_Z`), from that optimum
 #: with the peak's mean share over a stroke moved into the kinetic level (docs/decisions.md).
 SHRUNK_FROM = {"no_peak2": "relaxation2"}
+#: The damping a grown ``rich`` starts from (N s/mm): this fraction of ``f_kin`` over the
+#: movement's mean speed (``stroke_mm / ramp``), a viscous force of ~1 % of the kinetic level.
 DAMPING_START = 0.01
 
 
@@ -355,7 +357,7 @@ def fit_measurements(
     for m in models:  # the other laws, from their origin's optimum, where they can be chosen
         if m.law in fits:
             continue
-        done = [d for d in (*models, base) if d.law in fits]
+        done = list({d.law: d for d in (*models, base) if d.law in fits}.values())
         fitted = [fits[d.law] for d in done]
         chosen, _ = _choice(done, fitted, [rows[d.law] for d in done])
         can = chosen == [d.law for d in done].index(origin[m.law].law)
