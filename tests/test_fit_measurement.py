@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 import frictionfit.fit.measurement as measurement
 from frictionfit.cli import app
 from frictionfit.errors import Status
+from frictionfit.fit import fit_report
 from frictionfit.fit._numerics import normal_equations
 from frictionfit.fit.measurement import (
     PROFILE_MIN_DROP,
@@ -448,6 +449,8 @@ def test_auto_fits_the_law_without_a_peak_only_where_no_peak_is_measured(simulat
     assert 0 < np.sum(fitted) < len(items)  # both kinds of item
     table = res.bic_table
     assert np.array_equal(np.isfinite(table["measurement-no_peak2"]), fitted)
+    unfitted = int(np.flatnonzero(~fitted)[0])
+    assert "measurement-no_peak2 none (not fitted" in fit_report(res, unfitted)
     # without a peak that weakens over many strokes, its force moves to the kinetic level
     # (the last item's 1.2-N peak weakens over 9 mm): the fit ends near the larger one's
     np.testing.assert_array_less(smaller.chi2, 1.1 * larger.chi2[fitted])

@@ -246,7 +246,8 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
         lines.append("[[BIC by model]]")
         for name, b in result.bic_table.iloc[i].items():
             mark = "  <-- chosen" if name == result.model[i] else ""
-            lines.append(f"    {name:16s} {b:.6g}{mark}")
+            shown = f"{b:.6g}" if np.isfinite(b) else "none (not fitted, or no finite fit)"
+            lines.append(f"    {name:16s} {shown}{mark}")
     return "\n".join(lines)
 
 
