@@ -11,6 +11,9 @@ import typer
 
 STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip it, naming it "
                "and why).")
+#: The whole-measurement fits' laws, as the commands that fit them explain them.
+WHOLE_LAWS_HELP = ("auto (by BIC: no static peak, a static peak, or a static peak with viscous "
+                   "damping), no_peak2, relaxation, relaxation2 or rich.")
 
 
 def fail(message: str, code: int = 1):

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import WHOLE_LAWS_HELP
+
 #: The sample set shipped in ``data/``; ``frictionfit simulate`` remakes it with these.
 #: With the motor's position reads at 50 Hz, as ``frictionfit rub`` writes them.
 SAMPLE = {"seed": 2026, "sessions": 1, "measurements_per_class": 1,
@@ -57,10 +59,8 @@ def demo(
     data: Path = typer.Option(Path("data"), help="Folder of sample recordings."),
     out: Path = typer.Option(Path("frictionfit-demo"), help="Folder for the demo's outputs."),
     channel: str = typer.Option("index_x", help="Channel to fit."),
-    model: str = typer.Option("auto", help="Contact law of the whole-measurement fit: auto "
-                              "(by BIC: no static peak, a static peak, or a static peak "
-                              "with viscous damping), no_peak2, relaxation, relaxation2 or "
-                              "rich."),
+    model: str = typer.Option("auto", help="Contact law of the whole-measurement fit: "
+                              f"{WHOLE_LAWS_HELP}"),
     classify: bool = typer.Option(True, help="Also train a classifier on simulated sessions "
                                   "and classify the sample data."),
     fitted_features: bool = typer.Option(True, help="Classify with the fitted law's "

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from frictionfit.cli._load import STRICT_HELP, check_writable
+from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable
 
 #: Options that only per-motion fits (``--motions``) take.
 _PER_MOTION = ("--uncertainty", "--chains", "--tie", "--scheduler", "--n-starts", "--solver")
@@ -22,9 +22,7 @@ def fit(
                                "law, the law's state carried from stroke to stroke. --motions: "
                                "fit every non-preparatory motion x channel on its own, one row "
                                "per trial (single strokes, posteriors, Dask)."),
-    model: str = typer.Option("auto", help="Contact law. Whole: auto (by BIC: no static peak, "
-                              "a static peak, or a static peak with viscous damping), "
-                              "no_peak2, relaxation, relaxation2 or rich. "
+    model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
                             "fitted for each recording and channel) or session (held at the "
