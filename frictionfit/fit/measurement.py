@@ -469,8 +469,11 @@ SETUP = ("offset", "drift", "leak", *RIG)
 def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_steps: int = 100,
                 pool_size: int = 16) -> tuple[FitResult, np.ndarray, np.ndarray]:
     """Each fitted motion of each item on its own: the law refitted on the motion's window
-    (from its out command to the next one), rig and sensor held at the whole fit's values
-    (:data:`SETUP`), from the whole fit's optimum; the earlier motions are still simulated.
+    (from its out command to the next one), rig and sensor (:data:`SETUP`) and the kinetic
+    level's trend over the measurement (``wear``: one motion cannot tell it from the level)
+    held at the whole fit's values, from the whole fit's optimum; the earlier motions are
+    still simulated. Each motion's ``f_kin`` is thus its level referred to the whole fit's
+    reference point (halfway through the finger's travel).
 
     Returns the result (one row per motion) and, per row, the item's index and the motion's
     number: the spread of a parameter over one item's motions says how well one law
@@ -479,7 +482,8 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
     rows, item_of, motion_of, parts = [], [], [], []
     for name in dict.fromkeys(result.model):
         model = MeasurementModel(name.removeprefix("measurement-"))
-        sub, fixed, starts = [], {n: [] for n in SETUP}, []
+        held = [n for n in (*SETUP, "wear") if n in model.param_names]
+        sub, fixed, starts = [], {n: [] for n in held}, []
         for i, d in enumerate(items):
             if result.model[i] != name:
                 continue
@@ -491,7 +495,7 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
                     continue  # the preparatory motion, or one with too few usable blocks
                 sub.append(replace(driven, weight=weight))
                 starts.append(result.u[i])
-                for n in SETUP:
+                for n in held:
                     fixed[n].append(result.values.at[i, n])
                 rows.append(len(rows))
                 item_of.append(i)
