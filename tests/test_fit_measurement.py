@@ -349,6 +349,19 @@ def test_fix_rejects_unknown_parameters(simulated):
     assert held.values["damping"][0] == pytest.approx(1e-3)
 
 
+def test_auto_holds_a_value_in_the_laws_that_have_it(simulated):
+    # a held peak has no standard error, so the law without a peak is fitted too: it lacks
+    # the parameter and is fitted without it (this once raised "cannot fix")
+    item = [measurement_data(simulated[0], "index_x")]
+    res = fit_measurements(item, fix={"f_static_excess": 0.2, "damping": 1e-3}, progress=False)
+    assert np.isfinite(res.bic_table.to_numpy()).all()  # every law fitted
+    law = res.model[0].removeprefix("measurement-")
+    held = {"no_peak2": {}, "relaxation2": {"f_static_excess": 0.2},
+            "rich": {"f_static_excess": 0.2, "damping": 1e-3}}[law]
+    for name, value in held.items():
+        assert res.values[name][0] == pytest.approx(value) and res.flags[0][name] == "fixed"
+
+
 def test_fitted_features_follow_the_sklearn_contract():
     from sklearn.base import clone
 

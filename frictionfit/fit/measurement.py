@@ -398,10 +398,11 @@ def _origin(model: MeasurementModel, models: Sequence[MeasurementModel]
 
 def _held_of(model: MeasurementModel, fix: Mapping | None,
              models: Sequence[MeasurementModel]) -> dict:
-    """``fix`` without the parameters that ``model`` lacks and a law of ``models`` grown from
-    it has (any other name stays, to be reported)."""
-    grown = {n for m in models if GROWN_FROM.get(m.law) == model.law for n in m.param_names}
-    return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in grown}
+    """``fix`` without the parameters that ``model`` lacks and another law of ``models`` has:
+    a held value applies to the laws that have the parameter (a name no law has stays, to
+    be reported)."""
+    known = {n for m in models for n in m.param_names}
+    return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in known}
 
 
 def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
