@@ -37,7 +37,8 @@ def fit(
     stroke_mm: float = typer.Option(1.0, help="The rig's finger stroke in mm (stiffness is "
                                     "per mm of it)."),
     fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
-                                  "(repeatable), e.g. --fix tau=0.1."),
+                                  "(repeatable; with the auto model, in the laws that have it), "
+                                  "e.g. --fix tau=0.1."),
     prior: list[str] = typer.Option([], help="NAME=CENTRE,SD: a Normal prior (repeatable); for "
                                     "a log-scale parameter CENTRE is the median and SD that of "
                                     "its log, e.g. --prior ramp=0.15,0.3 (default ramp=0.125,0.3"

@@ -308,7 +308,8 @@ def fit_measurements(
     first optimum; taken from the motor's position reads where an item has them,
     :attr:`MeasurementData.motor`) and fit again; ``"rig"``: one latency and duration for
     all (but the motor's, where read). ``fix``:
-    name -> physical value (one, or one per item) held fixed.
+    name -> physical value (one, or one per item) held fixed (``"auto"``: in the laws that
+    have the parameter).
     ``u0``: unconstrained starting points of the law fitted from the data (default: the
     data's guess).
     ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
