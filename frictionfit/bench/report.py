@@ -151,6 +151,9 @@ def to_markdown(bench: Mapping) -> str:
             meas = stage.get("summary", {}).get(key)
             if meas:
                 lines += _measurements(f"{name}: {what}", meas)
+    for name, stage in bench.get("stages", {}).items():
+        if stage.get("summary", {}).get("lab"):
+            lines += _lab(f"{name}: {stage.get('dataset', 'lab recordings')}", stage["summary"])
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
                                        if not isinstance(v, (list, dict))])
@@ -207,6 +210,36 @@ def _measurements(heading: str, meas: Mapping) -> list[str]:
                           p["ours_s_per_recording"], p["speedup"], p["cost_rel_diff"]]
                          for peer, p in meas["peers"].items()])
     return lines
+
+
+def _lab(heading: str, summary: Mapping) -> list[str]:
+    """The lab section: fits, spread over motions, then each channel's agreement and ranks."""
+    lab = summary["lab"]
+    lines = [f"## {heading}", "",
+             f"{summary['lab_channels']} channels in {summary['lab_fit_s']:.3g} s after "
+             f"compilation ({summary['lab_compile_s']:.3g} s); laws "
+             + ", ".join(f"{law} {n}" for law, n in lab["laws"].items())
+             + f"; converged {summary['lab_converged_rate']:.3g}, with "
+             + " and ".join(lab["flagged_by_param"]) + " unflagged "
+             f"{summary['lab_converged_key_unflagged_rate']:.3g} (flagged: "
+             + ", ".join(f"{p} {n}" for p, n in lab["flagged_by_param"].items()) + ").", ""]
+    lines += _table(["parameter", "spread over motions (sd / median), median",
+                     "channels within 5 %"],
+                    [[p, s["median"], s["within_goal"]]
+                     for p, s in lab["motion_spread_by_param"].items()])
+    channels = lab["by_channel"]
+    keys = list(next(iter(channels.values()), {}))
+    lines += _table(["channel", *(_LAB_COLUMNS.get(k, k) for k in keys)],
+                    [[ch, *(v.get(k) for k in keys)] for ch, v in channels.items()])
+    return lines
+
+
+#: Column headings of the lab section's per-channel table.
+_LAB_COLUMNS = {"agreement_k": "sessions' agreement, log k (Pearson)",
+                "agreement_f_kin": "sessions' agreement, log f_kin (Pearson)",
+                "rank_k_vs_onset_rate": "k against measured onset rate (Spearman)",
+                "rank_f_kin_vs_held": "f_kin against measured held level (Spearman)",
+                "materials": "one-layer materials"}
 
 
 def plot_speed_vs_error(bench: Mapping, path: Path) -> None:

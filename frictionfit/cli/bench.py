@@ -9,20 +9,23 @@ import typer
 STAGES = ("fit", "uncertainty", "classify")
 
 
-def _run_stage(name: str, quick: bool, seed: int) -> dict:
+def _run_stage(name: str, quick: bool, seed: int, *args) -> dict:
     """``frictionfit.bench.<name>.run``; a missing or failing stage is reported, not raised."""
     import importlib
 
     try:
         module = importlib.import_module(f"frictionfit.bench.{name}")
-        return module.run(quick=quick, seed=seed)
+        return module.run(*args, quick=quick, seed=seed)
     except Exception as exc:  # noqa: BLE001 - one failing stage never sinks the report
         return {"stage": name, "error": f"{type(exc).__name__}: {exc}", "summary": {}}
 
 
 def bench(
     what: str = typer.Argument("all", help="fit, uncertainty, classify, hard-cases, scaling, "
-                               "or all (every stage + scaling + Dask speed-up + hard cases)."),
+                               "all (every stage + scaling + Dask speed-up + hard cases), or "
+                               "lab (whole fits of the --dataset folder, scored without a "
+                               "truth: convergence, spread over motions, agreement between "
+                               "sessions, ranks against measured quantities)."),
     out: Path = typer.Option(..., help="Folder for bench.json, bench.md, speed_vs_error.png."),
     quick: bool = typer.Option(False, help="Small configurations (minutes, not an hour)."),
     seed: int = typer.Option(0, help="Seed of the simulated trials."),
@@ -30,16 +33,24 @@ def bench(
                                   "timing (default: a local 2-worker cluster)."),
     results: Path = typer.Option(None, help="Also add the table, dated, to this results file "
                                  "(e.g. docs/results.md)."),
+    dataset: Path = typer.Option(None, help="lab: a folder of rubbing recordings, e.g. "
+                                 "../shared/datasets/rubbing-lab (--quick: every 20th)."),
 ) -> None:
-    """Run the benchmark on simulated trials with known truth; write the JSON, table and plot."""
-    choices = (*STAGES, "hard-cases", "scaling", "all")
+    """Run the benchmark on simulated trials with known truth (or, lab, on recordings without
+    one); write the JSON, table and plot."""
+    choices = (*STAGES, "hard-cases", "scaling", "all", "lab")
     if what not in choices:
         typer.echo(f"error: unknown benchmark {what!r}; choose from {', '.join(choices)}",
                    err=True)
         raise typer.Exit(2)
+    if (what == "lab") != (dataset is not None):
+        raise typer.BadParameter("lab needs a folder of recordings, and only lab takes one",
+                                 param_hint="--dataset")
     from frictionfit.bench.report import merge, record_results, write_report
 
     stages = [_run_stage(s, quick, seed) for s in STAGES if what in (s, "all")]
+    if what == "lab":
+        stages.append(_run_stage("lab", quick, seed, dataset))
     parts = {}
     if what in ("scaling", "all"):
         from frictionfit.bench import scaling
@@ -54,7 +65,8 @@ def bench(
         parts["hard_cases"] = hard_cases.run(quick=quick, seed=seed)
     command = (f"frictionfit bench {what} --out {out}" + (" --quick" if quick else "")
                + (f" --seed {seed}" if seed else "")
-               + (f" --scheduler {scheduler}" if scheduler else ""))
+               + (f" --scheduler {scheduler}" if scheduler else "")
+               + (f" --dataset {dataset}" if dataset else ""))
     paths = write_report(merge(stages, command=command, **parts), out)
     if results is not None:
         record_results(results, command, paths["markdown"].read_text())

@@ -1,0 +1,153 @@
+"""Whole fits of a folder of lab recordings, where no truth is known.
+
+A lab folder (``frictionfit.datasets.rubbing_lab``) carries no truth to recover, so the fits
+are scored by what a measurement of the material must do without one:
+
+- converge, with the stiffness ``k`` and the kinetic level ``f_kin`` determined (neither
+  flagged);
+- be one law for the whole recording: the spread of ``k`` and ``f_kin`` over its motions,
+  each motion refitted alone (:func:`~frictionfit.fit.measurement.fit_motions`), as
+  sd / median;
+- measure the material, not the day: the classes' median log values agree between sessions
+  (Pearson over the classes two sessions share, mean over the pairs);
+- rank the materials as the model-free measurements do: per material (one layer), the
+  median fitted ``k`` against the measured onset rate and the fitted ``f_kin`` against the
+  measured held level (:func:`~frictionfit.features.physical.measured_phase`; Spearman).
+
+Speed: the whole fits of every channel after a compiling fit of a few, timed apart.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.stats import spearmanr
+
+from frictionfit.bench.timing import machine_info
+from frictionfit.datasets.rubbing_lab import load
+from frictionfit.errors import Status
+from frictionfit.features.physical import FITTED_CHANNELS, PhysicalFeatures
+from frictionfit.fit.measurement import fit_measurements, fit_motions, measurement_data
+
+__all__ = ["KEY_PARAMS", "run"]
+
+#: The parameters a lab fit must determine.
+KEY_PARAMS = ("k", "f_kin")
+#: The spread over motions the goal allows (sd / median).
+SPREAD_GOAL = 0.05
+#: Channels fitted to compile the fits, timed apart.
+_WARM_UP = 16
+
+
+def run(path: str | Path, *, quick: bool = False, seed: int = 0,
+        channels: Sequence[str] = FITTED_CHANNELS) -> dict:
+    """Fit every recording of the folder ``path`` whole (``quick``: every 20th) on
+    ``channels`` with the default law choice and score the fits (module notes). ``seed`` is
+    not used (the fits are deterministic); it is accepted as every stage's is."""
+    del seed
+    recordings = load(path)[::20] if quick else load(path)
+    if not recordings:
+        raise ValueError(f"{path}: no readable recording")
+    items = [measurement_data(r, ch) for r in recordings for ch in channels]
+    start = time.perf_counter()
+    fit_measurements(items[:: max(len(items) // _WARM_UP, 1)][:_WARM_UP], progress=False)
+    compile_s = time.perf_counter() - start
+    fit = fit_measurements(items)
+    motions, item_of, _ = fit_motions(items, fit)
+    table = _per_item(recordings, channels, fit)
+    converged = table["status"] == Status.CONVERGED
+    determined = converged & ~table[[f"{p}_flagged" for p in KEY_PARAMS]].any(axis=1)
+    by_channel = _agreement(table)
+    for ch, ranks in _ranks(table, recordings, channels).items():
+        by_channel[ch] |= ranks
+    summary = {
+        "lab_channels": len(items),
+        "lab_fit_s": fit.wall_s,
+        "lab_channels_per_s": len(items) / fit.wall_s,
+        "lab_compile_s": compile_s,
+        "lab_converged_rate": float(converged.mean()),
+        "lab_converged_key_unflagged_rate": float(determined.mean()),
+        "lab": {"laws": table["law"].value_counts().to_dict(),
+                "flagged_by_param": {p: int(table[f"{p}_flagged"].sum()) for p in KEY_PARAMS},
+                "motion_spread_by_param": _spread(motions, item_of),
+                "by_channel": by_channel},
+    }
+    point = {"config": "whole fits, auto law", "seconds_per_trial": fit.wall_s / len(items),
+             "error": 1.0 - summary["lab_converged_key_unflagged_rate"],
+             "error_name": "1 - converged with k and f_kin unflagged"}
+    return {"stage": "lab", "summary": summary, "points": [point],
+            "machine": machine_info(), "dataset": str(path)}
+
+
+def _per_item(recordings, channels: Sequence[str], fit) -> pd.DataFrame:
+    """One row per fitted channel: its recording's metadata, law, status, key values
+    (log10) and whether each is flagged."""
+    rows = []
+    for i, (rec, ch) in enumerate((r, c) for r in recordings for c in channels):
+        row = {"channel": ch, "label": rec.label, "material": rec.metadata.get("material"),
+               "layers": rec.metadata.get("layers"), "session": rec.metadata.get("session"),
+               "law": fit.model[i].removeprefix("measurement-"), "status": int(fit.status[i])}
+        for p in KEY_PARAMS:
+            value = fit.values.at[i, p]
+            row[p] = np.log10(value) if value > 0 else np.nan
+            row[f"{p}_flagged"] = p in fit.flags[i]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _spread(motions, item_of: np.ndarray) -> dict:
+    """Per key parameter, the sd / median of its values over each item's refitted motions:
+    median over items and share within :data:`SPREAD_GOAL`."""
+    out = {}
+    for p in KEY_PARAMS:
+        values = motions.values[p].to_numpy()
+        spread = np.array([np.std(v, ddof=1) / np.median(np.abs(v))
+                           for v in (values[item_of == i] for i in np.unique(item_of))
+                           if v.size > 1])
+        out[p] = {"median": float(np.nanmedian(spread)),
+                  "within_goal": float(np.mean(spread <= SPREAD_GOAL)), "items": spread.size}
+    return out
+
+
+def _agreement(table: pd.DataFrame) -> dict:
+    """Per channel, for each key parameter ``p``, ``agreement_<p>``: the Pearson correlation
+    of the classes' median log values between two sessions, mean over the session pairs
+    (NaN with one session)."""
+    out: dict = {}
+    for ch, part in table.groupby("channel", sort=False):
+        medians = part.groupby(["session", "label"])[list(KEY_PARAMS)].median()
+        sessions = sorted(part["session"].dropna().unique())
+        out[ch] = {}
+        for p in KEY_PARAMS:
+            r = [medians.loc[a, p].to_frame("a").join(medians.loc[b, p].rename("b"),
+                                                      how="inner").corr().iloc[0, 1]
+                 for a, b in combinations(sessions, 2)]
+            out[ch][f"agreement_{p}"] = float(np.nanmean(r)) if r else np.nan
+    return out
+
+
+def _ranks(table: pd.DataFrame, recordings, channels: Sequence[str]) -> dict:
+    """Per channel, Spearman over the one-layer materials of the median fitted ``k`` against
+    the median measured onset rate, and of ``f_kin`` against the measured held level (both
+    strokes' magnitudes, mean)."""
+    features = PhysicalFeatures(fitted=False).fit(recordings)
+    measured = pd.DataFrame(features.transform(recordings),
+                            columns=features.get_feature_names_out())
+    out: dict = {}
+    for ch, part in table.groupby("channel", sort=False):
+        pick = [f"{ch}:{phase}_{name}" for phase in ("out", "back")
+                for name in ("onset_rate [N/s]", "static [N]")]
+        rows = measured.iloc[[i // len(channels) for i in part.index]].reset_index(drop=True)
+        frame = part.reset_index(drop=True).assign(
+            onset=rows[pick[0]].abs().to_numpy() / 2 + rows[pick[2]].abs().to_numpy() / 2,
+            held=rows[pick[1]].abs().to_numpy() / 2 + rows[pick[3]].abs().to_numpy() / 2)
+        one = frame[frame["layers"] == 1].groupby("material").median(numeric_only=True)
+        out[ch] = {"rank_k_vs_onset_rate": float(spearmanr(one["k"], one["onset"]).statistic),
+                   "rank_f_kin_vs_held": float(spearmanr(one["f_kin"], one["held"]).statistic),
+                   "materials": len(one)}
+    return out
