@@ -270,6 +270,7 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     out, plots = tmp_path / "whole.csv", tmp_path / "png"
     run = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--channel", "index_x",
                                    "--model", "relaxation2", "--fix", "drift=0",
+                                   "--uncertainty", "laplace",
                                    "--plot", str(plots), "--out", str(out), "--report"])
     assert run.exit_code == 0, run.output
     assert "[[Correlations]]" in run.output
@@ -279,10 +280,17 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     assert frame["trial"].tolist() == ["one/index_x"]
     assert frame["k [N/mm]"].notna().all()
     assert frame["drift_flag"].tolist() == ["fixed"] and frame["drift [N/s]"].tolist() == [0.0]
+    assert frame["uq_method"].tolist() == ["laplace"]  # the posterior's quantiles beside
+    k = frame.iloc[0][["k_p2.5 [N/mm]", "k_median [N/mm]", "k_p97.5 [N/mm]"]].to_numpy()
+    assert k[0] < frame["k [N/mm]"][0] < k[2] and np.all(np.diff(k) > 0)
+    assert k[0] < measurement_truth(simulated[1], "k") < k[2]
     assert [p.name for p in plots.iterdir()] == ["one__index_x.png"]
-    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--uncertainty", "laplace",
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--tie", "k",
                                    "--out", str(out)])
     assert bad.exit_code != 0 and "per-motion fits only: add --motions" in bad.output
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--uncertainty", "mcmc",
+                                   "--out", str(out)])
+    assert bad.exit_code != 0 and "choose none, laplace, emcee, auto" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--fix", "stiffness=1",
                                    "--out", str(out)])
     assert bad.exit_code != 0 and "cannot fix ['stiffness']" in bad.output

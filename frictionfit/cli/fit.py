@@ -11,7 +11,8 @@ import typer
 from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable
 
 #: Options that only per-motion fits (``--motions``) take.
-_PER_MOTION = ("--uncertainty", "--chains", "--tie", "--scheduler", "--n-starts", "--solver")
+_PER_MOTION = ("--chains", "--tie", "--scheduler", "--n-starts", "--solver")
+_UNCERTAINTY = ("none", "laplace", "emcee", "auto")
 
 
 def fit(
@@ -44,8 +45,10 @@ def fit(
                                     "its log, e.g. --prior ramp=0.15,0.3 (default ramp=0.125,0.3"
                                     "); NAME=none: flat over its bounds."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
-    uncertainty: str = typer.Option("none", help="--motions: posterior per trial: none, laplace,"
-                                    " emcee or auto (Laplace; emcee where Laplace is doubtful)."),
+    uncertainty: str = typer.Option("none", help="Posterior per row: none, laplace (quantiles "
+                                    "of the fit's Gaussian, milliseconds a row), emcee (slow: "
+                                    "seconds a row, check uq_converged) or auto (Laplace; emcee "
+                                    "where Laplace is doubtful)."),
     chains: Path = typer.Option(None, help="--motions with emcee: save the chains to this HDF5 "
                                 "file."),
     solver: str = typer.Option("lm", help="--motions: lm (frictionfit's batched LM, fastest), "
@@ -69,23 +72,23 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    given = dict(zip(_PER_MOTION, (uncertainty != "none", chains is not None, tie, scheduler,
-                                   n_starts != 1, solver != "lm"), strict=True))
+    if uncertainty not in _UNCERTAINTY:
+        raise typer.BadParameter(f"{uncertainty!r}: choose {', '.join(_UNCERTAINTY)}",
+                                 param_hint="--uncertainty")
+    given = dict(zip(_PER_MOTION, (chains is not None, tie, scheduler, n_starts != 1,
+                                   solver != "lm"), strict=True))
     if whole:
         used = [name for name, value in given.items() if value]
         if used:
             raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
                                      "--motions", param_hint="--whole")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
-                   priors, stroke_mm, rig, _Output(out, plot, report))
+                   priors, stroke_mm, rig, uncertainty, _Output(out, plot, report))
         return
     if channel:
         raise typer.BadParameter("per-motion fits take every channel", param_hint="--channel")
     if rig != "recording":
         raise typer.BadParameter("per-motion fits fit the motor per motion", param_hint="--rig")
-    if uncertainty not in ("none", "laplace", "emcee", "auto"):
-        raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
-                                 param_hint="--uncertainty")
     if scheduler and chains is not None:
         raise typer.BadParameter("one HDF5 file cannot take writes from many Dask workers",
                                  param_hint="--chains with --scheduler")
@@ -213,9 +216,10 @@ def _prepared(files: list[Path], strict: bool, prepare):
 
 
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
-               fixed: dict, priors: dict | None, stroke_mm: float, rig: str,
+               fixed: dict, priors: dict | None, stroke_mm: float, rig: str, uncertainty: str,
                output: _Output) -> None:
-    """``fit --whole``: one measurement fit per recording and channel, one row each."""
+    """``fit --whole``: one measurement fit per recording and channel, one row each (with
+    its posterior's quantiles unless ``uncertainty`` is "none")."""
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
@@ -248,6 +252,12 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     frame.insert(1, "problems", problems)
     # where each movement's onset and duration came from: the motor's reads or the force
     frame.insert(2, "timing", ["motor" if d.motor is not None else "force" for d in items])
+    if uncertainty != "none":
+        from frictionfit.uncertainty import measurement_posterior
+
+        post = measurement_posterior(result, items, method=uncertainty)
+        frame = frame.merge(post.to_frame(ids), on="trial")
+        typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s")
     _write(frame, output.table, "recording channels", result.wall_s)
     _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:
