@@ -290,7 +290,7 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     assert bad.exit_code != 0 and "per-motion fits only: add --motions" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--uncertainty", "mcmc",
                                    "--out", str(out)])
-    assert bad.exit_code != 0 and "choose none, laplace, emcee, auto" in bad.output
+    assert bad.exit_code != 0 and "choose none, laplace, emcee or auto" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--fix", "stiffness=1",
                                    "--out", str(out)])
     assert bad.exit_code != 0 and "cannot fix ['stiffness']" in bad.output

@@ -12,7 +12,6 @@ from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable
 
 #: Options that only per-motion fits (``--motions``) take.
 _PER_MOTION = ("--chains", "--tie", "--scheduler", "--n-starts", "--solver")
-_UNCERTAINTY = ("none", "laplace", "emcee", "auto")
 
 
 def fit(
@@ -72,8 +71,8 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    if uncertainty not in _UNCERTAINTY:
-        raise typer.BadParameter(f"{uncertainty!r}: choose {', '.join(_UNCERTAINTY)}",
+    if uncertainty not in ("none", "laplace", "emcee", "auto"):
+        raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
                                  param_hint="--uncertainty")
     given = dict(zip(_PER_MOTION, (chains is not None, tie, scheduler, n_starts != 1,
                                    solver != "lm"), strict=True))
