@@ -58,7 +58,7 @@ def run(path: str | Path, *, quick: bool = False, seed: int = 0,
     fit_measurements(items[:: max(len(items) // _WARM_UP, 1)][:_WARM_UP], progress=False)
     compile_s = time.perf_counter() - start
     fit = fit_measurements(items)
-    motions, item_of, _ = fit_motions(items, fit)
+    motions, item_of, _ = fit_motions(items, fit, progress=None)
     table = _per_item(recordings, channels, fit)
     converged = table["status"] == Status.CONVERGED
     determined = converged & ~table[[f"{p}_flagged" for p in KEY_PARAMS]].any(axis=1)

@@ -469,13 +469,15 @@ SETUP = ("offset", "drift", "leak", *RIG)
 
 
 def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_steps: int = 100,
-                pool_size: int = 16) -> tuple[FitResult, np.ndarray, np.ndarray]:
+                pool_size: int = 16, progress: bool | None = False
+                ) -> tuple[FitResult, np.ndarray, np.ndarray]:
     """Each fitted motion of each item on its own: the law refitted on the motion's window
     (from its out command to the next one), rig and sensor (:data:`SETUP`) and the kinetic
     level's trend over the measurement (``wear``: one motion cannot tell it from the level)
     held at the whole fit's values, from the whole fit's optimum; the earlier motions are
     still simulated. Each motion's ``f_kin`` is thus its level referred to the whole fit's
-    reference point (halfway through the finger's travel).
+    reference point (halfway through the finger's travel). ``progress``: a bar per law
+    (None: on a terminal).
 
     Returns the result (one row per motion) and, per row, the item's index and the motion's
     number: the spread of a parameter over one item's motions says how well one law
@@ -505,7 +507,7 @@ def fit_motions(items: Sequence[MeasurementData], result: FitResult, *, max_step
         if sub:
             parts.append(_fit(sub, model=model, fix={n: np.array(v) for n, v in fixed.items()},
                               u0=np.stack(starts), max_steps=max_steps, pool_size=pool_size,
-                              progress=False))
+                              progress=progress))
     return concat_results(parts), np.array(item_of), np.array(motion_of)
 
 
