@@ -48,16 +48,21 @@ def test_cli_lab_needs_a_folder_and_only_lab_takes_one(tmp_path):
 def test_lab_bench_on_the_lab_recordings(shared):
     stage = lab.run(shared / "datasets" / "rubbing-lab", quick=True)
     s = stage["summary"]
+    assert list(s["lab"]) == list(lab.MODELS) and len(stage["points"]) == len(lab.MODELS)
     assert s["lab_channels"] == 2 * 21  # every 20th of 420 recordings, thumb_x and index_x
-    assert 0.8 <= s["lab_converged_key_unflagged_rate"] <= s["lab_converged_rate"] <= 1.0
-    assert sum(s["lab"]["laws"].values()) == s["lab_channels"]
-    for p in lab.KEY_PARAMS:
-        spread = s["lab"]["motion_spread_by_param"][p]
-        assert 0.0 < spread["median"] < 0.1 and spread["items"] == s["lab_channels"]
-    for ch in ("thumb_x", "index_x"):
-        ranks = s["lab"]["by_channel"][ch]
-        assert ranks["materials"] >= 3
-        assert -1.0 <= ranks["rank_k_vs_onset_rate"] <= 1.0
-        assert np.isfinite(ranks["agreement_k"])
+    assert s["lab"]["relaxation2"]["laws"] == {"relaxation2": 42}
+    for scores in s["lab"].values():
+        assert 0.8 <= scores["converged_key_unflagged_rate"] <= scores["converged_rate"] <= 1
+        assert sum(scores["laws"].values()) == s["lab_channels"]
+        for p in lab.KEY_PARAMS:
+            spread = scores["motion_spread_by_param"][p]
+            assert 0.0 < spread["median"] < 0.1 and spread["items"] == s["lab_channels"]
+        for ch in ("thumb_x", "index_x"):
+            ranks = scores["by_channel"][ch]
+            assert ranks["materials"] >= 3
+            assert -1.0 <= ranks["rank_k_vs_onset_rate"] <= 1.0
+            assert np.isfinite(ranks["agreement_k"])
+    assert s["lab_converged_rate"] == s["lab"]["auto"]["converged_rate"]
     text = to_markdown(merge([stage]))
-    assert "## lab: " in text and "sessions' agreement, log k (Pearson)" in text
+    assert "## lab, auto: " in text and "## lab, relaxation2: " in text
+    assert "sessions' agreement, log k (Pearson)" in text

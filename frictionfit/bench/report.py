@@ -152,8 +152,8 @@ def to_markdown(bench: Mapping) -> str:
             if meas:
                 lines += _measurements(f"{name}: {what}", meas)
     for name, stage in bench.get("stages", {}).items():
-        if stage.get("summary", {}).get("lab"):
-            lines += _lab(f"{name}: {stage.get('dataset', 'lab recordings')}", stage["summary"])
+        for model, scores in stage.get("summary", {}).get("lab", {}).items():
+            lines += _lab(f"{name}, {model}: {stage.get('dataset', 'lab recordings')}", scores)
     lines += ["## Summary", ""]
     lines += _table(["key", "value"], [[k, v] for k, v in bench.get("summary", {}).items()
                                        if not isinstance(v, (list, dict))])
@@ -212,16 +212,15 @@ def _measurements(heading: str, meas: Mapping) -> list[str]:
     return lines
 
 
-def _lab(heading: str, summary: Mapping) -> list[str]:
-    """The lab section: fits, spread over motions, then each channel's agreement and ranks."""
-    lab = summary["lab"]
+def _lab(heading: str, lab: Mapping) -> list[str]:
+    """A lab section: fits, spread over motions, then each channel's agreement and ranks."""
     lines = [f"## {heading}", "",
-             f"{summary['lab_channels']} channels in {summary['lab_fit_s']:.3g} s after "
-             f"compilation ({summary['lab_compile_s']:.3g} s); laws "
+             f"{lab['channels']} channels in {lab['fit_s']:.3g} s after compilation "
+             f"({lab['compile_s']:.3g} s); laws "
              + ", ".join(f"{law} {n}" for law, n in lab["laws"].items())
-             + f"; converged {summary['lab_converged_rate']:.3g}, with "
+             + f"; converged {lab['converged_rate']:.3g}, with "
              + " and ".join(lab["flagged_by_param"]) + " unflagged "
-             f"{summary['lab_converged_key_unflagged_rate']:.3g} (flagged: "
+             f"{lab['converged_key_unflagged_rate']:.3g} (flagged: "
              + ", ".join(f"{p} {n}" for p, n in lab["flagged_by_param"].items()) + ").", ""]
     lines += _table(["parameter", "spread over motions (sd / median), median",
                      "channels within 5 %"],
