@@ -21,7 +21,7 @@ def fit(
                                "one rig (motor timing), sensor (offset, drift, leak) and contact "
                                "law, the law's state carried from stroke to stroke. --motions: "
                                "fit every non-preparatory motion x channel on its own, one row "
-                               "per trial (single strokes, posteriors, Dask)."),
+                               "per trial (single strokes, multi-start, Dask)."),
     model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
