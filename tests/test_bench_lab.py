@@ -54,7 +54,7 @@ def test_lab_bench_on_the_lab_recordings(shared):
     for scores in s["lab"].values():
         assert 0.8 <= scores["converged_key_unflagged_rate"] <= scores["converged_rate"] <= 1
         assert sum(scores["laws"].values()) == s["lab_channels"]
-        for p in lab.KEY_PARAMS:
+        for p in lab.DETERMINED:
             spread = scores["motion_spread_by_param"][p]
             assert 0.0 < spread["median"] < 0.1 and spread["items"] == s["lab_channels"]
         for ch in ("thumb_x", "index_x"):

@@ -34,10 +34,10 @@ from frictionfit.errors import Status
 from frictionfit.features.physical import FITTED_CHANNELS, PhysicalFeatures
 from frictionfit.fit.measurement import fit_measurements, fit_motions, measurement_data
 
-__all__ = ["KEY_PARAMS", "run"]
+__all__ = ["DETERMINED", "MODELS", "run"]
 
 #: The parameters a lab fit must determine.
-KEY_PARAMS = ("k", "f_kin")
+DETERMINED = ("k", "f_kin")
 #: The spread over motions the goal allows (sd / median).
 SPREAD_GOAL = 0.05
 #: Channels fitted to compile the fits, timed apart.
@@ -85,7 +85,7 @@ def _score(items, recordings, channels: Sequence[str], model: str,
     motions, item_of, _ = fit_motions(items, fit, progress=None)
     table = _per_item(recordings, channels, fit)
     converged = table["status"] == Status.CONVERGED
-    determined = converged & ~table[[f"{p}_flagged" for p in KEY_PARAMS]].any(axis=1)
+    determined = converged & ~table[[f"{p}_flagged" for p in DETERMINED]].any(axis=1)
     by_channel = _agreement(table)
     for ch, ranks in _ranks(table, measured, channels).items():
         by_channel[ch] |= ranks
@@ -94,7 +94,7 @@ def _score(items, recordings, channels: Sequence[str], model: str,
             "converged_rate": float(converged.mean()),
             "converged_key_unflagged_rate": float(determined.mean()),
             "laws": table["law"].value_counts().to_dict(),
-            "flagged_by_param": {p: int(table[f"{p}_flagged"].sum()) for p in KEY_PARAMS},
+            "flagged_by_param": {p: int(table[f"{p}_flagged"].sum()) for p in DETERMINED},
             "motion_spread_by_param": _spread(motions, item_of),
             "by_channel": by_channel}
 
@@ -107,7 +107,7 @@ def _per_item(recordings, channels: Sequence[str], fit) -> pd.DataFrame:
         row = {"channel": ch, "label": rec.label, "material": rec.metadata.get("material"),
                "layers": rec.metadata.get("layers"), "session": rec.metadata.get("session"),
                "law": fit.model[i].removeprefix("measurement-"), "status": int(fit.status[i])}
-        for p in KEY_PARAMS:
+        for p in DETERMINED:
             value = fit.values.at[i, p]
             row[p] = np.log10(value) if value > 0 else np.nan
             row[f"{p}_flagged"] = p in fit.flags[i]
@@ -119,7 +119,7 @@ def _spread(motions, item_of: np.ndarray) -> dict:
     """Per key parameter, the sd / median of its values over each item's refitted motions:
     median over items and share within :data:`SPREAD_GOAL`."""
     out = {}
-    for p in KEY_PARAMS:
+    for p in DETERMINED:
         values = motions.values[p].to_numpy()
         spread = np.array([np.std(v, ddof=1) / np.median(np.abs(v))
                            for v in (values[item_of == i] for i in np.unique(item_of))
@@ -135,10 +135,10 @@ def _agreement(table: pd.DataFrame) -> dict:
     (NaN with one session)."""
     out: dict = {}
     for ch, part in table.groupby("channel", sort=False):
-        medians = part.groupby(["session", "label"])[list(KEY_PARAMS)].median()
+        medians = part.groupby(["session", "label"])[list(DETERMINED)].median()
         sessions = sorted(part["session"].dropna().unique())
         out[ch] = {}
-        for p in KEY_PARAMS:
+        for p in DETERMINED:
             r = [medians.loc[a, p].to_frame("a").join(medians.loc[b, p].rename("b"),
                                                       how="inner").corr().iloc[0, 1]
                  for a, b in combinations(sessions, 2)]
