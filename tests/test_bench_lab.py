@@ -48,9 +48,9 @@ def test_cli_lab_needs_a_folder_and_only_lab_takes_one(tmp_path):
 def test_lab_bench_on_the_lab_recordings(shared):
     stage = lab.run(shared / "datasets" / "rubbing-lab", quick=True)
     s = stage["summary"]
-    assert list(s["lab"]) == list(lab.MODELS) and len(stage["points"]) == len(lab.MODELS)
+    assert list(s["lab"]) == list(lab.FITS) and len(stage["points"]) == len(lab.FITS)
     assert s["lab_channels"] == 2 * 21  # every 20th of 420 recordings, thumb_x and index_x
-    assert s["lab"]["relaxation2"]["laws"] == {"relaxation2": 42}
+    assert s["lab"]["relaxation2, wear 0"]["laws"] == {"relaxation2": 42}
     for scores in s["lab"].values():
         assert 0.8 <= scores["converged_key_unflagged_rate"] <= scores["converged_rate"] <= 1
         assert sum(scores["laws"].values()) == s["lab_channels"]
@@ -64,5 +64,5 @@ def test_lab_bench_on_the_lab_recordings(shared):
             assert np.isfinite(ranks["agreement_k"])
     assert s["lab_converged_rate"] == s["lab"]["auto"]["converged_rate"]
     text = to_markdown(merge([stage]))
-    assert "## lab, auto: " in text and "## lab, relaxation2: " in text
+    assert "## lab, auto: " in text and "## lab, relaxation2, wear 0: " in text
     assert "sessions' agreement, log k (Pearson)" in text

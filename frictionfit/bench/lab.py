@@ -34,7 +34,7 @@ from frictionfit.errors import Status
 from frictionfit.features.physical import FITTED_CHANNELS, PhysicalFeatures
 from frictionfit.fit.measurement import fit_measurements, fit_motions, measurement_data
 
-__all__ = ["DETERMINED", "MODELS", "run"]
+__all__ = ["DETERMINED", "FITS", "run"]
 
 #: The parameters a lab fit must determine.
 DETERMINED = ("k", "f_kin")
@@ -42,14 +42,16 @@ DETERMINED = ("k", "f_kin")
 SPREAD_GOAL = 0.05
 #: Channels fitted to compile the fits, timed apart.
 _WARM_UP = 16
-#: The laws scored: the default choice per channel, and the one law the fitted features use.
-MODELS = ("auto", "relaxation2")
+#: The fits scored, by name: the default law choice per channel, and the fitted features' fit
+#: (one law, the kinetic level's ``wear`` held at 0).
+FITS = {"auto": {"model": "auto"},
+        "relaxation2, wear 0": {"model": "relaxation2", "fix": {"wear": 0.0}}}
 
 
 def run(path: str | Path, *, quick: bool = False, seed: int = 0,
         channels: Sequence[str] = FITTED_CHANNELS) -> dict:
     """Fit every recording of the folder ``path`` whole (``quick``: every 20th) on
-    ``channels`` with each of :data:`MODELS` and score the fits (module notes); the summary's
+    ``channels`` by each of :data:`FITS` and score the fits (module notes); the summary's
     ``lab_*`` numbers are the default law choice's. ``seed`` is not used (the fits are
     deterministic); it is accepted as every stage's is."""
     del seed
@@ -60,28 +62,29 @@ def run(path: str | Path, *, quick: bool = False, seed: int = 0,
     features = PhysicalFeatures(fitted=False).fit(recordings)
     measured = pd.DataFrame(features.transform(recordings),
                             columns=features.get_feature_names_out())
-    scores = {model: _score(items, recordings, channels, model, measured) for model in MODELS}
-    default = scores[MODELS[0]]
+    scores = {name: _score(items, recordings, channels, kw, measured)
+              for name, kw in FITS.items()}
+    default = scores["auto"]
     summary = {f"lab_{key}": default[key] for key in (
         "channels", "fit_s", "channels_per_s", "compile_s", "converged_rate",
         "converged_key_unflagged_rate")} | {"lab": scores}
-    points = [{"config": f"whole fits, {model}", "seconds_per_trial": 1 / s["channels_per_s"],
+    points = [{"config": f"whole fits, {name}", "seconds_per_trial": 1 / s["channels_per_s"],
                "error": 1.0 - s["converged_key_unflagged_rate"],
                "error_name": "1 - converged with k and f_kin unflagged"}
-              for model, s in scores.items()]
+              for name, s in scores.items()]
     return {"stage": "lab", "summary": summary, "points": points,
             "machine": machine_info(), "dataset": str(path)}
 
 
-def _score(items, recordings, channels: Sequence[str], model: str,
+def _score(items, recordings, channels: Sequence[str], fit_kw: dict,
            measured: pd.DataFrame) -> dict:
-    """Fit ``items`` with ``model`` (after a compiling fit of a few, timed apart) and score
-    the fits (module notes)."""
+    """Fit ``items`` by ``fit_measurements(**fit_kw)`` (after a compiling fit of a few, timed
+    apart) and score the fits (module notes)."""
     start = time.perf_counter()
-    fit_measurements(items[:: max(len(items) // _WARM_UP, 1)][:_WARM_UP], model=model,
+    fit_measurements(items[:: max(len(items) // _WARM_UP, 1)][:_WARM_UP], **fit_kw,
                      progress=False)
     compile_s = time.perf_counter() - start
-    fit = fit_measurements(items, model=model)
+    fit = fit_measurements(items, **fit_kw)
     motions, item_of, _ = fit_motions(items, fit, progress=None)
     table = _per_item(recordings, channels, fit)
     converged = table["status"] == Status.CONVERGED
