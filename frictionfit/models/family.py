@@ -62,7 +62,7 @@ PARAMS: dict[str, Param] = {
               "signal proportional to the finger's travel (normal-force leakage)"),
         Param("accel", "1", 0.005, 0.5, 0.1, "logit",
               "share of a movement spent accelerating (and as long braking)"),
-        Param("wear", "1/mm", -0.2, 0.2, 0.0, "logit",
+        Param("wear", "1/mm", -0.05, 0.05, 0.0, "logit",
               "relative fall of the kinetic level per mm of finger travel (a textile wearing,"
               " or the grip's normal force drifting)", prior=(0.0, 0.05)),
         Param("drag", "N s/mm", 1e-7, 10.0, 1e-3, "loglogit",
