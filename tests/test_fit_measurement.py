@@ -15,7 +15,7 @@ import frictionfit.fit.measurement as measurement
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit import fit_report
-from frictionfit.fit._numerics import normal_equations
+from frictionfit.fit._numerics import normal_equations, scaled_condition
 from frictionfit.fit.measurement import (
     PROFILE_MIN_DROP,
     _at_optimum,
@@ -355,6 +355,26 @@ def test_fix_rejects_unknown_parameters(simulated):
         fit_measurements(item, model="relaxation2", fix={"damping": 1e-3})
     held = fit_measurements(item, model="rich", fix={"damping": 1e-3}, progress=False)
     assert held.values["damping"][0] == pytest.approx(1e-3)
+
+
+def test_fix_refuses_values_it_cannot_hold(simulated):
+    # a NaN once made every column vanish and crashed the batch; a value past a bound was
+    # silently pulled inside it
+    items = [measurement_data(r, "index_x") for r in simulated[:2]]
+    name = f"{items[1].name}/index_x"
+    with pytest.raises(ValueError, match=rf"cannot fix ramp at nan s for {name} \(1 of 2"):
+        fit_measurements(items, fix={"ramp": [0.12, np.nan]})
+    with pytest.raises(ValueError, match=r"cannot fix wear at 0.1 1/mm .* within \[-0.05, 0.05\]"):
+        fit_measurements(items, fix={"wear": 0.1})
+    with pytest.raises(ValueError, match="one value or one per item"):
+        fit_measurements(items, fix={"ramp": [0.12, 0.12, 0.12]})
+
+
+def test_condition_of_nothing_is_infinite():
+    # every free parameter of a fit flagged (at a bound, or its column vanishing) leaves an
+    # empty matrix: nothing is determined, and the batch goes on with a status
+    assert np.all(scaled_condition(np.zeros((3, 0, 0))) == np.inf)
+    assert measurement._cond_inside(np.eye(2), [False, False]) == np.inf
 
 
 def test_auto_holds_a_value_in_the_laws_that_have_it(simulated):

@@ -42,8 +42,10 @@ def _unit_diagonal(a: np.ndarray):
 
 def scaled_condition(a: np.ndarray) -> np.ndarray:
     """Condition number of each symmetric ``a (..., p, p)`` scaled to unit diagonal
-    (inf unless positive definite)."""
+    (inf unless positive definite; inf for ``p = 0``: nothing is determined)."""
     ev = np.linalg.eigvalsh(_unit_diagonal(a)[0])
+    if ev.shape[-1] == 0:
+        return np.full(ev.shape[:-1], np.inf)
     low = ev[..., 0]
     return np.where(low > 0, ev[..., -1] / np.where(low > 0, low, 1.0), np.inf)
 

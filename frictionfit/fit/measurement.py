@@ -332,6 +332,7 @@ def fit_measurements(
         raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
     if timing not in ("movement", "rig"):
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
+    _check_held(fix, items)
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
     origin = {m.law: _origin(m, models) for m in models}
@@ -404,6 +405,27 @@ def _held_of(model: MeasurementModel, fix: Mapping | None,
     be reported)."""
     known = {n for m in models for n in m.param_names}
     return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in known}
+
+
+def _check_held(fix: Mapping | None, items: Sequence[MeasurementData]) -> None:
+    """Refuse a held value that is not finite or lies outside its parameter's bounds (it
+    would be pulled inside them, or turn every residual into NaN), naming the item."""
+    for name, value in (fix or {}).items():
+        par = PARAMS.get(name)
+        if par is None:
+            continue  # an unknown name is refused by the fit, with the law's parameters
+        try:
+            held = np.broadcast_to(np.asarray(value, dtype=np.float64), (len(items),))
+        except ValueError:
+            raise ValueError(f"fix[{name!r}] must be one value or one per item "
+                             f"({len(items)}), not shape {np.shape(value)}") from None
+        bad = np.flatnonzero(~np.isfinite(held) | (held < par.lower) | (held > par.upper))
+        if bad.size:
+            i = bad[0]
+            raise ValueError(f"cannot fix {name} at {held[i]:g} {par.unit} for "
+                             f"{items[i].name}/{items[i].channel} ({bad.size} of {len(items)} "
+                             f"items): it must be finite and within [{par.lower:g}, "
+                             f"{par.upper:g}]")
 
 
 def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
