@@ -65,4 +65,5 @@ def test_lab_bench_on_the_lab_recordings(shared):
     assert s["lab_converged_rate"] == s["lab"]["auto"]["converged_rate"]
     text = to_markdown(merge([stage]))
     assert "## lab, auto: " in text and "## lab, relaxation2, wear 0: " in text
+    assert "## lab, auto, rig per session: " in text
     assert "sessions' agreement, log k (Pearson)" in text
