@@ -440,6 +440,22 @@ def test_a_branch_that_no_longer_acts_does_not_make_the_fit_ill_conditioned(shar
     assert "k" not in res.flags[0] and "f_kin" not in res.flags[0]
 
 
+def test_a_static_excess_cannot_stand_in_for_the_kinetic_level(shared):
+    """A lab channel whose force droops a little over each slide (basket, one layer): with a
+    slip-weakening length of up to 10 mm the fit put the level into a "static excess" that
+    never weakened within a stroke (1.53 N over 10 mm) and the kinetic level at 0.036 N.
+    A static peak weakens within the stroke, so the kinetic level carries the slide."""
+    model = MeasurementModel()
+    assert model.params[model.param_names.index("slip_length")].upper == model.stroke_mm
+    assert PARAMS["slip_length"].upper == 10.0  # the family's, e.g. FabricSlide's long slides
+    d = measurement_data(read_recording(shared / "datasets" / "rubbing-lab"
+                                        / "s1_basket-1_03.csv"), "index_x")
+    res = fit_measurements([d], progress=False)
+    assert Status(int(res.status[0])) == Status.CONVERGED
+    # the basket's held level is ~1.5 N on this finger
+    assert res.values.at[0, "f_kin"] > 1.0 and "f_kin" not in res.flags[0], res.params(0)
+
+
 def test_damping_is_found_where_the_simulator_put_it(simulated):
     # fitted from the data's guess, viscous damping runs to its lower bound; grown from
     # relaxation2's optimum with the damping where it acts, "rich" finds it

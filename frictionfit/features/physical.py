@@ -205,7 +205,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 23  # 23: a slow branch pinned at its largest fraction solved again
+    _version = 24  # 24: a static peak weakens within a stroke (slip_length <= 1 mm)
     _view_params = ("with_stderr",)  # the stderrs are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
     #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the

@@ -332,9 +332,9 @@ def fit_measurements(
         raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
     if timing not in ("movement", "rig"):
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
-    _check_held(fix, items)
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
+    _check_held(fix, items, models)
     origin = {m.law: _origin(m, models) for m in models}
     base = next(origin[m.law] or m for m in models)  # the law fitted from the data
     if u0 is not None and np.shape(u0)[-1] != base.n_params:
@@ -407,11 +407,14 @@ def _held_of(model: MeasurementModel, fix: Mapping | None,
     return {n: v for n, v in (fix or {}).items() if n in model.param_names or n not in known}
 
 
-def _check_held(fix: Mapping | None, items: Sequence[MeasurementData]) -> None:
-    """Refuse a held value that is not finite or lies outside its parameter's bounds (it
-    would be pulled inside them, or turn every residual into NaN), naming the item."""
+def _check_held(fix: Mapping | None, items: Sequence[MeasurementData],
+                models: Sequence[MeasurementModel]) -> None:
+    """Refuse a held value that is not finite or lies outside its parameter's bounds in
+    ``models`` (it would be pulled inside them, or turn every residual into NaN), naming
+    the item."""
+    bounds = {n: p for m in models for n, p in zip(m.param_names, m.params, strict=True)}
     for name, value in (fix or {}).items():
-        par = PARAMS.get(name)
+        par = bounds.get(name)
         if par is None:
             continue  # an unknown name is refused by the fit, with the law's parameters
         try:
@@ -712,7 +715,7 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
             else np.array(u0, dtype=np.float64))
     for name, value in fix.items():
         j = model.param_names.index(name)
-        base[:, j] = PARAMS[name].to_unconstrained(np.broadcast_to(value, (len(items),)))
+        base[:, j] = model.params[j].to_unconstrained(np.broadcast_to(value, (len(items),)))
     free = tuple(j for j, n in enumerate(model.param_names) if n not in fix)
     data = stack_items(items, base)
     residual = residual_fn(model, free)

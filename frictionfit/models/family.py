@@ -93,8 +93,9 @@ class NamedParameters:
         the sampling coordinate of unconstrained ``u`` (or ``u`` itself if ``sampling``);
         a NumPy array for a NumPy ``u``, else a JAX array."""
         rows = []
+        own = dict(zip(self.param_names, self.params, strict=True))
         for name, prior in self.prior_table.items():
-            par = PARAMS[name]
+            par = own[name]
             centre, sd = par.prior_in_sampling(prior)
             x = u[..., self.param_names.index(name)]
             rows.append(((x if sampling else par.to_sampling(x)) - centre) / sd)

@@ -25,6 +25,7 @@ speed turns the loading slope into ``k``, and the carried state is simulated.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from functools import lru_cache, partial
 
 import equinox as eqx
@@ -39,6 +40,7 @@ from frictionfit.models._forward import (
     weighted_normal_equations,
 )
 from frictionfit.models.family import PARAMS, NamedParameters
+from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force
 
 __all__ = ["LAWS", "RIG", "MeasurementModel", "to_unconstrained", "trapezoid"]
@@ -46,7 +48,9 @@ __all__ = ["LAWS", "RIG", "MeasurementModel", "to_unconstrained", "trapezoid"]
 #: Default priors of the measurement model beyond the parameters' own: the slip-weakening
 #: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with
 #: no static peak has a second optimum: a "static excess" that never weakens within the
-#: stroke (slip length >> stroke) standing in for the kinetic level, f_kin near zero.
+#: stroke (slip length >> stroke) standing in for the kinetic level, f_kin near zero. Where
+#: the force droops over each slide the data outweigh the prior; the length's bound, one
+#: stroke (:func:`_peak_within_stroke`), closes that optimum.
 PRIORS = {"slip_length": (0.05, 1.5)}
 
 #: Contact laws of the measurement model (names of ``contact_force`` arguments): ``no_peak2``
@@ -110,6 +114,13 @@ class MeasurementModel(eqx.Module, NamedParameters):
     @property
     def param_names(self) -> tuple[str, ...]:
         return ("offset", "drift", "leak", *self.law_names, "drag", "delay", "ramp", "accel")
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        """The parameters' definitions (:data:`PARAMS`), ``slip_length`` bounded by the
+        stroke (:func:`_peak_within_stroke`)."""
+        return tuple(_peak_within_stroke(self.stroke_mm) if n == "slip_length" else PARAMS[n]
+                     for n in self.param_names)
 
     def with_priors(self, priors: Mapping[str, tuple[float, float] | None] | None = None
                     ) -> MeasurementModel:
@@ -211,6 +222,15 @@ RIG = ("delay", "ramp", "accel")
 
 #: The sensor's parameters, the first of :attr:`MeasurementModel.param_names`.
 SENSOR = ("offset", "drift", "leak")
+
+
+@lru_cache(maxsize=8)
+def _peak_within_stroke(stroke_mm: float) -> Param:
+    """``slip_length`` at most one stroke (mm): a static peak weakens within the stroke that
+    breaks it loose. A longer "weakening" is a level drooping over each slide, which took
+    the kinetic level's place (on the lab stand-in 10 mm allowed ``f_kin`` ~ 0.03 N under a
+    1.5-N "excess"; docs/decisions.md)."""
+    return replace(PARAMS["slip_length"], upper=stroke_mm)
 
 
 def _ones_if_none(stretch, commands):
