@@ -311,21 +311,24 @@ def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
     import pandas as pd
 
     frame = pd.read_csv(out)
-    for name in ("delay", "ramp", "accel"):  # one motor for the day: held, the same for both
+    for name in ("ramp", "accel"):  # one motor profile for the day: held, the same for both
         column = next(c for c in frame.columns if c.startswith(f"{name} ["))
         assert frame[f"{name}_flag"].tolist() == ["fixed", "fixed"]
         assert frame[column].nunique() == 1
+    assert (frame["delay_flag"] != "fixed").all()  # the latency stays each recording's
 
 
 def test_session_rig_holds_the_motor_of_each_day(simulated):
     items = [measurement_data(r, "index_x") for r in simulated]
     res = fit_measurements(items, rig="session", progress=False)
     sessions = np.array([d.session for d in items])
-    for name in ("delay", "ramp", "accel"):
+    for name in ("ramp", "accel"):
         values = res.values[name].to_numpy()
         for s in (1, 2):
-            assert np.ptp(values[sessions == s]) == 0.0  # one motor per day
+            assert np.ptp(values[sessions == s]) == 0.0  # one motor profile per day
         assert all(f[name] == "fixed" for f in res.flags)
+    assert not any(f.get("delay") == "fixed" for f in res.flags)  # latency per recording
+    assert np.ptp(res.values["delay"].to_numpy()[sessions == 1]) > 0.0
     truth = [measurement_truth(r, "ramp") for r in simulated]
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
 

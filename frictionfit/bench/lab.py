@@ -42,9 +42,9 @@ DETERMINED = ("k", "f_kin")
 SPREAD_GOAL = 0.05
 #: Channels fitted to compile the fits, timed apart.
 _WARM_UP = 16
-#: The fits scored, by name: the default law choice per channel, the same with the rig held
-#: at each session's median (``rig="session"``), and the fitted features' fit (one law, the
-#: kinetic level's ``wear`` held at 0).
+#: The fits scored, by name: the default law choice per channel, the same with the motor's
+#: profile held at each session's median (``rig="session"``), and the fitted features' fit
+#: (one law, the kinetic level's ``wear`` held at 0).
 FITS = {"auto": {"model": "auto"},
         "auto, rig per session": {"model": "auto", "rig": "session"},
         "relaxation2, wear 0": {"model": "relaxation2", "fix": {"wear": 0.0}}}

@@ -25,9 +25,10 @@ def fit(
     model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
-                            "fitted for each recording and channel) or session (held at the "
-                            "median of each session's first fits, then fitted again: one "
-                            "motor all day)."),
+                            "fitted for each recording and channel) or session (the "
+                            "movement's duration and acceleration held at the median of each "
+                            "session's first fits, then fitted again: one motor profile all "
+                            "day; the latency stays per recording)."),
     channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
                                       "default thumb_x and index_x)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),

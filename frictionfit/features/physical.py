@@ -172,12 +172,13 @@ class PhysicalFeatures(RecordingFeatures):
         0.77 (``index_x``) and 0.75 (``thumb_x``) with ``relaxation2``, 0.76 and 0.77 with
         ``"auto"``; ``k`` at 0.87 / 0.73 and 0.86 / 0.71.
     rig : {"recording", "session"}, default "recording"
-        Where the motor's timing is fitted: per recording (its features depend on it
+        Where the motor's profile is fitted: per recording (its features depend on it
         alone), or once per session: the median over the session's recordings that share
         a batch (64 recordings; a lone recording has its own), so a recording's
         features then depend on which recordings are featurised with it. On the lab
-        stand-in ``"session"`` scored 0.952 alone (0.967 with the measured quantities) in
-        batches of 16 recordings, 0.924 (0.955) in batches of 64 (decisions.md).
+        stand-in ``"session"``, holding the latency too, scored 0.952 alone (0.967 with the
+        measured quantities) in batches of 16 recordings, 0.924 (0.955) in batches of 64
+        (decisions.md).
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
