@@ -451,6 +451,8 @@ def test_a_static_excess_cannot_stand_in_for_the_kinetic_level(shared):
     model = MeasurementModel()
     assert model.params[model.param_names.index("slip_length")].upper == model.stroke_mm
     assert PARAMS["slip_length"].upper == 10.0  # the family's, e.g. FabricSlide's long slides
+    with pytest.raises(ValueError, match=r"slip_length: prior .* inside \(0.0001, 1\) mm"):
+        model.with_priors({"slip_length": (5.0, 1.0)})  # refused where it is set, not in a fit
     d = measurement_data(read_recording(shared / "datasets" / "rubbing-lab"
                                         / "s1_basket-1_03.csv"), "index_x")
     res = fit_measurements([d], progress=False)

@@ -125,13 +125,14 @@ class MeasurementModel(eqx.Module, NamedParameters):
     def with_priors(self, priors: Mapping[str, tuple[float, float] | None] | None = None
                     ) -> MeasurementModel:
         """This model with the default priors updated by ``priors`` (``None``: flat)."""
-        table = {p.name: p.prior for p in self.params} | {
+        own = dict(zip(self.param_names, self.params, strict=True))
+        table = {n: p.prior for n, p in own.items()} | {
             n: p for n, p in PRIORS.items() if n in self.param_names}
         for name, prior in (priors or {}).items():
             if name not in table:
                 raise ValueError(f"no parameter {name!r} to put a prior on; "
                                  f"parameters are {list(self.param_names)}")
-            table[name] = None if prior is None else PARAMS[name].check_prior(prior)
+            table[name] = None if prior is None else own[name].check_prior(prior)
         chosen = tuple((n, *p) for n, p in table.items() if p is not None)
         return MeasurementModel(self.law, self.stroke_mm, chosen)
 
