@@ -333,6 +333,23 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
 
 
+def test_a_held_profile_keeps_its_own_uncertainty(simulated):
+    # alone in its session, a recording holds its own profile: the stiffness's stderr is
+    # then its free fit's (the held values' covariance carried into it), not the narrower
+    # one of a fit that takes the profile as known
+    item = [measurement_data(simulated[0], "index_x")]
+    kw = dict(model="relaxation2", progress=False)
+    alone = fit_measurements(item, rig="session", **kw)
+    free = fit_measurements(item, **kw)
+    known = fit_measurements(item, fix={n: alone.values[n][0] for n in ("ramp", "accel")},
+                             **kw)
+    assert alone.flags[0]["ramp"] == "fixed"
+    assert known.stderr["k"][0] < 0.8 * free.stderr["k"][0]  # the profile matters to k
+    np.testing.assert_allclose(alone.stderr["k"][0], free.stderr["k"][0], rtol=0.1)
+    with pytest.raises(ValueError, match="rig='session' estimates"):
+        fit_measurements(item, rig="session", fix={"ramp": 0.12})
+
+
 def test_a_slow_branch_pinned_at_its_bound_is_solved_again(simulated, monkeypatch):
     # started with the slow branch at its largest fraction, the solver stays there (the
     # logistic map is flat); solved again from a weaker, faster branch, each fit is better

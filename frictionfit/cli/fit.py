@@ -27,8 +27,9 @@ def fit(
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
                             "fitted for each recording and channel) or session (the "
                             "movement's duration and acceleration held at the median of each "
-                            "session's first fits, then fitted again: one motor profile all "
-                            "day; the latency stays per recording)."),
+                            "session's fits, then fitted again: one motor profile all day, "
+                            "the spread of the session's profiles carried into the stderrs; "
+                            "the latency stays per recording)."),
     channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
                                       "default thumb_x and index_x)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),

@@ -39,7 +39,7 @@ from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
            "MIN_LOADING_SAMPLES", "RHO_MAX", "VANISHING", "ar1_deviance", "choose",
-           "flag_fast_loading", "flag_gated", "statistics", "status_of"]
+           "flag_fast_loading", "flag_gated", "statistics", "status_of", "widen"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -91,12 +91,44 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
             flags[par.name] = "at bound"
         elif not np.isfinite(se) or scale[jj] < 1e-12:
             flags[par.name] = "singular"
-        elif not par.signed and se > abs(v):
+        elif _wider_than_value(par, v, se):
             flags[par.name] = "stderr > value"
         elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
     flag_gated(flags, values, errs)
     return flags
+
+
+def _wider_than_value(par, value: float, stderr: float) -> bool:
+    """A positive parameter whose standard error exceeds its value."""
+    return not par.signed and stderr > abs(value)
+
+
+def widen(model: ContactModel, u: np.ndarray, stats: dict, free: tuple[int, ...],
+          extra: np.ndarray) -> None:
+    """Add ``extra`` (n_trials, p_free, p_free; unconstrained coordinates) to each trial's
+    covariance in ``stats`` (:func:`statistics`' output; in place): the uncertainty a fit
+    does not see, such as that of a value it held. Standard errors and correlations follow;
+    a parameter now wider than its value, or only shaping an effect no longer told apart
+    from none, is flagged (:func:`_flags`' rules; the other flags stay)."""
+    names = [model.param_names[j] for j in free]
+    slope = {model.param_names[j]: _delta(model.params[j], np.nan_to_num(u[:, j]))[1]
+             for j in free}
+    for i, cov in enumerate(stats["cov"]):
+        if not np.all(np.isfinite(cov)):
+            continue
+        cov += extra[i]
+        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        errs, flags, values = stats["stderr"][i], stats["flags"][i], stats["values"][i]
+        for jj, name in enumerate(names):
+            errs[name] = float(abs(slope[name][i]) * sd[jj])
+            par = model.params[free[jj]]
+            if name not in flags and _wider_than_value(par, values[name], errs[name]):
+                flags[name] = "stderr > value"
+        stats["correl"][i] = {(a, b): float(cov[ja, jb] / max(sd[ja] * sd[jb], 1e-300))
+                              for ja, a in enumerate(names) for jb, b in enumerate(names)
+                              if jb > ja}
+        flag_gated(flags, values, errs)
 
 
 def flag_gated(flags: dict, values: dict, errs: dict) -> None:

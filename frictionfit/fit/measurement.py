@@ -34,7 +34,7 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import map_chunks, scaled_condition
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import noise_scale
-from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of
+from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, status_of, widen
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.motor import MotorTiming, motor_timing
 from frictionfit.fit.result import FitResult, concat_results, param_table, take_trials
@@ -302,10 +302,12 @@ def fit_measurements(
     (with the same rig and sensor) whose BIC is within ``BIC_TIE`` of the best.
 
     ``rig="session"``: hold the motor's profile (:data:`SESSION_RIG`) at its median over
-    each session's converged first fits and fit again (the motor moves the same way in every
-    recording of a day). ``timing="movement"``: shift each movement's command by its own latency
-    deviation and stretch its duration by its own factor (both found per movement at the
-    first optimum; taken from the motor's position reads where an item has them,
+    each session's fits on the full grid (every parameter free) and fit again (the motor
+    moves the same way in every recording of a day); the spread of the session's profiles
+    beyond their fits' errors is carried into the standard errors (:func:`_held_covariance`).
+    ``timing="movement"``: shift each movement's command by its own latency deviation and
+    stretch its duration by its own factor (both found per movement at the first optimum;
+    taken from the motor's position reads where an item has them,
     :attr:`MeasurementData.motor`) and fit again; ``"rig"``: one latency and duration for
     all (but the motor's, where read). ``fix``:
     name -> physical value (one, or one per item) held fixed (``"auto"``: in the laws that
@@ -330,6 +332,9 @@ def fit_measurements(
     """
     if rig not in ("recording", "session"):
         raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
+    if rig == "session" and set(SESSION_RIG) & set(fix or {}):
+        raise ValueError(f"rig='session' estimates {', '.join(SESSION_RIG)} from each "
+                         "session's recordings: fix them, or leave rig='recording'")
     if timing not in ("movement", "rig"):
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
@@ -347,14 +352,22 @@ def fit_measurements(
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
     first = _fit(coarse, model=base, fix=_held_of(base, fix, models), u0=u0, **kw, **loose)
-    held = dict(fix or {}) | (_session_rig(items, first) if rig == "session" else {})
     if timing == "movement":
         items = _with_movement_timing(base, items, first)
     fits = {base.law: first}
-    if again:  # again on the full grid
+    if again:  # again on the full grid (for the session's profile, a third fit polishes it)
         fits[base.law] = _fit(items, model=base, u0=np.stack(first.u),
-                              tolerances=SECOND_FIT_TOLERANCES,
-                              **_broadcast(_held_of(base, held, models), len(items)), **kw)
+                              **_broadcast(_held_of(base, fix, models), len(items)), **kw,
+                              **(loose if rig == "session" else
+                                 dict(tolerances=SECOND_FIT_TOLERANCES)))
+    held, spread, free_fit = dict(fix or {}), None, fits[base.law]
+    if rig == "session":
+        profile, spread = _session_rig(items, free_fit)
+        held |= profile
+        fits[base.law] = _fit(items, model=base, u0=np.stack(free_fit.u),
+                              tolerances=SECOND_FIT_TOLERANCES, **kw,
+                              **_broadcast(_held_of(base, held, models), len(items)),
+                              held_cov=_held_covariance(base, free_fit, spread, held))
     rows = {base.law: np.arange(len(items))}
     for m in models:  # the other laws, from their origin's optimum, where they can be chosen
         if m.law in fits:
@@ -372,6 +385,8 @@ def fit_measurements(
             at, model=m, u0=_from_optimum(m, at, start_fit),
             **_broadcast(_held_of(m, held, models), len(items), rows[m.law]),
             tolerances=SECOND_FIT_TOLERANCES if again else None,
+            held_cov=None if spread is None else _held_covariance(
+                m, free_fit, spread, held, rows[m.law]),
             restart=m.law not in GROWN_FROM, **kw)
     first, chosen, bic = _by_bic(models, [fits[m.law] for m in models],
                                  [rows[m.law] for m in models])
@@ -671,27 +686,72 @@ def _with_movement_timing(model: MeasurementModel, items: Sequence[MeasurementDa
 
 #: The rig's parameters ``rig="session"`` holds: the movement's duration and acceleration
 #: share, set by the motor's profile all day. Its latency after a command goes with the
-#: serial link and the controller loop and stays per recording: held too, the simulator's
-#: stiffness error grew 0.020 -> 0.065 and its fits with none of the five key parameters
-#: flagged fell 0.950 -> 0.893 (docs/decisions.md).
+#: serial link and the controller loop and stays per recording: held too (at the first
+#: fits' medians), the simulator's stiffness error grew 0.020 -> 0.065 and its fits with none
+#: of the five key parameters flagged fell 0.950 -> 0.893 (docs/decisions.md).
 SESSION_RIG = ("ramp", "accel")
 
 
-def _session_rig(items: Sequence[MeasurementData], result: FitResult) -> dict[str, np.ndarray]:
-    """Per item, the median of :data:`SESSION_RIG` over its session's usable fits (its own
-    where none)."""
+def _session_rig(items: Sequence[MeasurementData], result: FitResult
+                 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Per item, the median of :data:`SESSION_RIG` over its session's usable fits in
+    ``result`` (fits with every parameter free), and the variance of the held values' error
+    for that item, ``(n_items, r, r)`` in the fit's unconstrained coordinates: the
+    session's values' spread beyond their fits' own variance (a robust sd; what a
+    recording's profile departs from the day's), plus the median's variance. An item alone in
+    its session (or with no usable fit in it) holds its own values with its own covariance."""
     usable = np.isin(result.status, [int(Status.CONVERGED), int(Status.ILL_CONDITIONED)])
     sessions = np.array([str(d.session) for d in items])
-    held = {}
-    for name in SESSION_RIG:
-        own = result.values[name].to_numpy()
-        value = own.copy()
-        for s in np.unique(sessions):
-            pick = (sessions == s) & usable
-            if pick.any():
-                value[sessions == s] = np.median(own[pick])
-        held[name] = value
-    return held
+    law = result.member(0)
+    cols = [law.param_names.index(n) for n in SESSION_RIG]
+    u = np.stack(result.u)[:, cols]
+    spread = np.stack([_block(result, i, SESSION_RIG) for i in range(len(items))])
+    held_u = u.copy()
+    for s in np.unique(sessions):
+        pick = (sessions == s) & usable
+        if pick.sum() < 2:
+            continue
+        centre = np.median(u[pick], axis=0)
+        robust_var = (1.4826 * np.median(np.abs(u[pick] - centre), axis=0)) ** 2
+        fit_var = np.nanmedian(np.diagonal(spread[pick], axis1=1, axis2=2), axis=0)
+        between = np.clip(robust_var - np.nan_to_num(fit_var), 0.0, None)
+        held_u[sessions == s] = centre
+        spread[sessions == s] = np.diag(between + np.pi / 2 * robust_var / pick.sum())
+    held = {n: law.params[c].to_physical(held_u[:, k])
+            for k, (n, c) in enumerate(zip(SESSION_RIG, cols, strict=True))}
+    return held, spread
+
+
+def _block(result: FitResult, i: int, names: Sequence[str]) -> np.ndarray:
+    """The covariance of ``names`` in item ``i``'s fit (its unconstrained coordinates; NaN
+    where not computed)."""
+    free = result.free_names(i)
+    at = [free.index(n) for n in names]
+    return np.asarray(result.cov[i])[np.ix_(at, at)]
+
+
+def _held_covariance(model: MeasurementModel, free_fit: FitResult, spread: np.ndarray,
+                     held: Mapping, rows: np.ndarray | None = None) -> np.ndarray:
+    """Per item (of ``rows``), the covariance the session's held profile adds to ``model``'s
+    free parameters (those not in ``held``; unconstrained coordinates): ``B V B^T``, with
+    ``V`` the held values' error variance (``spread``, :func:`_session_rig`) and ``B`` the
+    parameters' shift per unit shift of the held ones, ``Sigma_fh Sigma_hh^-1`` in the
+    covariance of ``free_fit`` (every parameter of the law fitted from the data free; a
+    parameter that law lacks gets no share). Zero where that covariance was not computed."""
+    rows = np.arange(free_fit.n_trials) if rows is None else rows
+    free = [n for n in model.param_names if n not in held]
+    out = np.zeros((len(rows), len(free), len(free)))
+    for k, i in enumerate(rows):
+        names = free_fit.free_names(i)
+        cov = np.asarray(free_fit.cov[i])
+        h = [names.index(n) for n in SESSION_RIG]
+        if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(spread[i]))):
+            continue
+        cross = np.array([cov[names.index(n), h] if n in names else np.zeros(len(h))
+                          for n in free])
+        b = np.linalg.lstsq(cov[np.ix_(h, h)], cross.T, rcond=1e-12)[0].T
+        out[k] = b @ spread[i] @ b.T
+    return out
 
 
 #: The LM's tolerances for a first fit that a second one polishes: it only has to come near
@@ -704,14 +764,15 @@ SECOND_FIT_TOLERANCES = {"ftol": 1e-5, "xtol": 1e-7}
 
 def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
          tolerances: Mapping[str, float] | None = None, final: bool = True,
-         restart: bool = True) -> FitResult:
+         restart: bool = True, held_cov: np.ndarray | None = None) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
     ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
     of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults. ``final=False``
     (a fit another one polishes): no derived quantities, and the "trades off" flags are
     not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
     ``restart=False``: no slow branch solved again (:func:`_slow_branch_restarted`; for
-    fits started from an optimum where it was).
+    fits started from an optimum where it was). ``held_cov``: per item, the covariance that
+    held values' own uncertainty adds to the free parameters (:func:`_held_covariance`).
 
     The pools run in one host thread: the contact simulation's Jacobian is a host
     callback (:mod:`frictionfit.models._forward`) that shares its rows over the cores
@@ -765,6 +826,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     block_var = stats["redchi"] * inflation
     if final:
         _ridges_checked(model, free, u, stats, data, block_var)
+    if held_cov is not None:
+        widen(model, u, stats, free, held_cov)
     y_bar = np.sum(weight**2 * data[0], axis=1) / np.maximum(np.sum(weight**2, axis=1), 1e-300)
     ss_tot = np.sum(weight**2 * (data[0] - y_bar[:, None]) ** 2, axis=1)
     r2 = 1.0 - stats["chi2"] / np.where(ss_tot > 0, ss_tot, np.nan)
