@@ -73,8 +73,11 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    if uncertainty not in ("none", "laplace", "emcee", "auto"):
-        raise typer.BadParameter(f"{uncertainty!r}: choose none, laplace, emcee or auto",
+    from frictionfit.uncertainty import METHODS
+
+    if uncertainty not in ("none", *METHODS):
+        raise typer.BadParameter(f"{uncertainty!r}: choose none, {', '.join(METHODS[:-1])} "
+                                 f"or {METHODS[-1]}",
                                  param_hint="--uncertainty")
     given = dict(zip(_PER_MOTION, (chains is not None, tie, scheduler, n_starts != 1,
                                    solver != "lm"), strict=True))
