@@ -27,6 +27,7 @@ from frictionfit.fit.measurement import (
     residual_fn,
     stack_items,
 )
+from frictionfit.fit.session import read_session_rigs, write_session_rigs
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
 from frictionfit.recording import read_recording, write_recording
@@ -316,9 +317,25 @@ def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
         assert frame[f"{name}_flag"].tolist() == ["fixed", "fixed"]
         assert frame[column].nunique() == 1
     assert (frame["delay_flag"] != "fixed").all()  # the latency stays each recording's
+    # the day's profile saved, a recording fitted later on its own holds it
+    rigs = tmp_path / "rigs.json"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path), "--channel", "index_x", "--model",
+                                   "relaxation2", "--rig", "session", "--save-rig", str(rigs),
+                                   "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    later = tmp_path / "later.csv"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path / "r0.csv"), "--channel", "index_x",
+                                   "--model", "relaxation2", "--rig", str(rigs), "--out",
+                                   str(later)])
+    assert run.exit_code == 0, run.output
+    k = next(c for c in frame.columns if c.startswith("k ["))
+    assert pd.read_csv(later)[k][0] == pytest.approx(frame[k][0], rel=1e-6)
+    bad = CliRunner().invoke(app, ["fit", str(tmp_path), "--save-rig", str(rigs), "--out",
+                                   str(out)])
+    assert bad.exit_code != 0 and "estimated with --rig session" in bad.output
 
 
-def test_session_rig_holds_the_motor_of_each_day(simulated):
+def test_session_rig_holds_the_motor_of_each_day(simulated, tmp_path):
     items = [measurement_data(r, "index_x") for r in simulated]
     res = fit_measurements(items, rig="session", progress=False)
     sessions = np.array([d.session for d in items])
@@ -331,6 +348,22 @@ def test_session_rig_holds_the_motor_of_each_day(simulated):
     assert np.ptp(res.values["delay"].to_numpy()[sessions == 1]) > 0.0
     truth = [measurement_truth(r, "ramp") for r in simulated]
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
+    # the day's profiles, saved, hold a recording fitted later on its own: the same numbers
+    assert sorted(res.session_rigs) == ["1", "2"]
+    assert all(r.n_fits >= 2 for r in res.session_rigs.values())
+    write_session_rigs(res.session_rigs, tmp_path / "rigs.json")
+    rigs = read_session_rigs(tmp_path / "rigs.json")
+    assert rigs == res.session_rigs
+    later = fit_measurements(items[:1], rig=rigs, progress=False)
+    for name in ("k", "f_kin", "ramp", "accel"):
+        assert later.values[name][0] == pytest.approx(res.values[name][0], rel=1e-6)
+    for name in ("k", "f_kin"):
+        assert later.stderr[name][0] == pytest.approx(res.stderr[name][0], rel=1e-6)
+    with pytest.raises(ValueError, match="no motor profile for session"):
+        fit_measurements(items[:1], rig={"7": rigs["1"]})
+    (tmp_path / "bad.json").write_text('{"1": {"ramp": 0.1}}')
+    with pytest.raises(ValueError, match="not a file of session motor profiles"):
+        read_session_rigs(tmp_path / "bad.json")
 
 
 def test_a_held_profile_keeps_its_own_uncertainty(simulated):
@@ -346,7 +379,7 @@ def test_a_held_profile_keeps_its_own_uncertainty(simulated):
     assert alone.flags[0]["ramp"] == "fixed"
     assert known.stderr["k"][0] < 0.8 * free.stderr["k"][0]  # the profile matters to k
     np.testing.assert_allclose(alone.stderr["k"][0], free.stderr["k"][0], rtol=0.1)
-    with pytest.raises(ValueError, match="rig='session' estimates"):
+    with pytest.raises(ValueError, match="a session's profile holds ramp, accel"):
         fit_measurements(item, rig="session", fix={"ramp": 0.12})
 
 

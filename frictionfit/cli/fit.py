@@ -25,11 +25,15 @@ def fit(
     model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
-                            "fitted for each recording and channel) or session (the "
+                            "fitted for each recording and channel), session (the "
                             "movement's duration and acceleration held at the median of each "
                             "session's fits, then fitted again: one motor profile all day, "
                             "the spread of the session's profiles carried into the stderrs; "
-                            "the latency stays per recording)."),
+                            "the latency stays per recording) or a .json file of session "
+                            "profiles written by --save-rig (a recording fitted later in the "
+                            "day holds its day's profile)."),
+    save_rig: Path = typer.Option(None, help="Whole fits with --rig session: write each "
+                                  "session's motor profile to this .json file."),
     channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
                                       "default thumb_x and index_x)."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
@@ -87,12 +91,14 @@ def fit(
             raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
                                      "--motions", param_hint="--whole")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
-                   priors, stroke_mm, rig, uncertainty, _Output(out, plot, report))
+                   priors, stroke_mm, _rig_option(rig, save_rig), uncertainty,
+                   _Output(out, plot, report, save_rig))
         return
     if channel:
         raise typer.BadParameter("per-motion fits take every channel", param_hint="--channel")
-    if rig != "recording":
-        raise typer.BadParameter("per-motion fits fit the motor per motion", param_hint="--rig")
+    if rig != "recording" or save_rig is not None:
+        raise typer.BadParameter("per-motion fits fit the motor per motion",
+                                 param_hint="--rig / --save-rig")
     if scheduler and chains is not None:
         raise typer.BadParameter("one HDF5 file cannot take writes from many Dask workers",
                                  param_hint="--chains with --scheduler")
@@ -109,6 +115,7 @@ class _Output:
     table: Path
     plots: Path | None
     report: bool
+    rigs: Path | None = None  # whole fits: the sessions' motor profiles (.json)
 
 
 @dataclass(frozen=True)
@@ -219,17 +226,36 @@ def _prepared(files: list[Path], strict: bool, prepare):
         yield rec, prepared
 
 
+def _rig_option(rig: str, save_rig: Path | None) -> str | dict:
+    """``--rig`` as ``fit_measurements`` takes it: a name, or the session profiles read from a
+    .json file; ``--save-rig`` checked (it needs ``--rig session`` and a writable .json)."""
+    if save_rig is not None:
+        if rig != "session":
+            raise typer.BadParameter("the profiles are estimated with --rig session",
+                                     param_hint="--save-rig")
+        check_writable(save_rig, "--save-rig", (".json",))
+    if rig in ("recording", "session"):
+        return rig
+    if not rig.endswith(".json"):
+        raise typer.BadParameter(f"{rig!r}: choose recording or session, or a .json file of "
+                                 "session profiles (written by --save-rig)", param_hint="--rig")
+    from frictionfit.fit.session import read_session_rigs
+
+    try:
+        return read_session_rigs(rig)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--rig") from None
+
+
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
-               fixed: dict, priors: dict | None, stroke_mm: float, rig: str, uncertainty: str,
-               output: _Output) -> None:
+               fixed: dict, priors: dict | None, stroke_mm: float, rig: str | dict,
+               uncertainty: str, output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each (with
     its posterior's quantiles unless ``uncertainty`` is "none")."""
     from frictionfit.fit import fit_report
     from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.models import MeasurementModel
 
-    if rig not in ("recording", "session"):
-        raise typer.BadParameter(f"{rig!r}: choose recording or session", param_hint="--rig")
     if law == "auto" and (priors or stroke_mm != 1.0):
         raise typer.BadParameter("priors and a stroke need one law: choose --model",
                                  param_hint="--prior / --stroke-mm")
@@ -250,7 +276,12 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     try:
         result = fit_measurements(items, model=model, fix=fixed, rig=rig)
     except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--fix") from None
+        raise typer.BadParameter(str(exc), param_hint="--fix / --rig") from None
+    if output.rigs is not None:
+        from frictionfit.fit.session import write_session_rigs
+
+        write_session_rigs(result.session_rigs, output.rigs)
+        typer.echo(f"{len(result.session_rigs)} session motor profile(s) -> {output.rigs}")
     ids = [f"{d.name}/{d.channel}" for d in items]
     frame = result.to_frame(ids)
     frame.insert(1, "problems", problems)

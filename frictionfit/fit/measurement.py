@@ -38,6 +38,13 @@ from frictionfit.fit._stats import VANISHING, choose, flag_gated, statistics, st
 from frictionfit.fit.derived import derived_quantities
 from frictionfit.fit.motor import MotorTiming, motor_timing
 from frictionfit.fit.result import FitResult, concat_results, param_table, take_trials
+from frictionfit.fit.session import (
+    SESSION_RIG,
+    SessionRig,
+    estimate_session_rigs,
+    held_covariance,
+    held_profile,
+)
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import RIG, to_unconstrained
@@ -289,7 +296,7 @@ def fit_measurements(
     items: Sequence[MeasurementData],
     *,
     model: MeasurementModel | str = "auto",
-    rig: str = "recording",
+    rig: str | Mapping[str, SessionRig] = "recording",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
@@ -301,10 +308,13 @@ def fit_measurements(
     items); ``"auto"``: per item, the first law of :data:`AUTO_LAWS`
     (with the same rig and sensor) whose BIC is within ``BIC_TIE`` of the best.
 
-    ``rig="session"``: hold the motor's profile (:data:`SESSION_RIG`) at its median over
-    each session's fits on the full grid (every parameter free) and fit again (the motor
-    moves the same way in every recording of a day); the spread of the session's profiles
-    beyond their fits' errors is carried into the standard errors (:func:`_held_covariance`).
+    ``rig="session"``: hold the motor's profile (:data:`~frictionfit.fit.session.SESSION_RIG`)
+    at its median over each session's fits on the full grid (every parameter free) and fit
+    again (the motor moves the same way in every recording of a day); the spread of the
+    session's profiles beyond their fits' errors is carried into the standard errors
+    (:mod:`frictionfit.fit.session`); the profiles held are in the result's
+    ``session_rigs``. ``rig={session: SessionRig}``: hold profiles estimated before
+    (every item's session must have one).
     ``timing="movement"``: shift each movement's command by its own latency deviation and
     stretch its duration by its own factor (both found per movement at the first optimum;
     taken from the motor's position reads where an item has them,
@@ -330,11 +340,7 @@ def fit_measurements(
     (their Jacobian is a host callback, and JAX's CPU callbacks can deadlock when two
     threads of one process run such programs).
     """
-    if rig not in ("recording", "session"):
-        raise ValueError(f"rig must be 'recording' or 'session', not {rig!r}")
-    if rig == "session" and set(SESSION_RIG) & set(fix or {}):
-        raise ValueError(f"rig='session' estimates {', '.join(SESSION_RIG)} from each "
-                         "session's recordings: fix them, or leave rig='recording'")
+    _check_rig(rig, items, fix)
     if timing not in ("movement", "rig"):
         raise ValueError(f"timing must be 'movement' or 'rig', not {timing!r}")
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
@@ -347,7 +353,7 @@ def fit_measurements(
                          f"law fitted from the data), not {np.shape(u0)[-1]}")
     start = time.perf_counter()
     kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
-    again = rig == "session" or timing == "movement"  # a second fit polishes the first
+    again = rig != "recording" or timing == "movement"  # a second fit polishes the first
     coarse = [_halved(d) for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
@@ -358,16 +364,18 @@ def fit_measurements(
     if again:  # again on the full grid (for the session's profile, a third fit polishes it)
         fits[base.law] = _fit(items, model=base, u0=np.stack(first.u),
                               **_broadcast(_held_of(base, fix, models), len(items)), **kw,
-                              **(loose if rig == "session" else
+                              **(loose if rig != "recording" else
                                  dict(tolerances=SECOND_FIT_TOLERANCES)))
-    held, spread, free_fit = dict(fix or {}), None, fits[base.law]
-    if rig == "session":
-        profile, spread = _session_rig(items, free_fit)
+    held, error, free_fit, rigs = dict(fix or {}), None, fits[base.law], None
+    if rig != "recording":
+        sessions = [str(d.session) for d in items]
+        rigs = estimate_session_rigs(sessions, free_fit) if rig == "session" else dict(rig)
+        profile, error = held_profile(sessions, free_fit, rigs)
         held |= profile
         fits[base.law] = _fit(items, model=base, u0=np.stack(free_fit.u),
                               tolerances=SECOND_FIT_TOLERANCES, **kw,
                               **_broadcast(_held_of(base, held, models), len(items)),
-                              held_cov=_held_covariance(base, free_fit, spread, held))
+                              held_cov=held_covariance(base, free_fit, error, held))
     rows = {base.law: np.arange(len(items))}
     for m in models:  # the other laws, from their origin's optimum, where they can be chosen
         if m.law in fits:
@@ -385,14 +393,35 @@ def fit_measurements(
             at, model=m, u0=_from_optimum(m, at, start_fit),
             **_broadcast(_held_of(m, held, models), len(items), rows[m.law]),
             tolerances=SECOND_FIT_TOLERANCES if again else None,
-            held_cov=None if spread is None else _held_covariance(
-                m, free_fit, spread, held, rows[m.law]),
+            held_cov=None if error is None else held_covariance(
+                m, free_fit, error, held, rows[m.law]),
             restart=m.law not in GROWN_FROM, **kw)
     first, chosen, bic = _by_bic(models, [fits[m.law] for m in models],
                                  [rows[m.law] for m in models])
     first.bic_table = bic if len(models) > 1 else None
+    first.session_rigs = rigs
     first.wall_s = time.perf_counter() - start
     return first
+
+
+def _check_rig(rig: str | Mapping[str, SessionRig], items: Sequence[MeasurementData],
+               fix: Mapping | None) -> None:
+    """Refuse a ``rig`` that is neither a known name nor profiles for every item's session,
+    and a held value of what the session's profile holds."""
+    if isinstance(rig, str):
+        if rig not in ("recording", "session"):
+            raise ValueError(f"rig must be 'recording', 'session' or session profiles, "
+                             f"not {rig!r}")
+        if rig == "recording":
+            return
+    else:
+        missing = sorted({str(d.session) for d in items} - set(rig))
+        if missing:
+            raise ValueError(f"no motor profile for session(s) {', '.join(missing)} (the "
+                             f"profiles given are for {', '.join(sorted(rig)) or 'none'})")
+    if set(SESSION_RIG) & set(fix or {}):
+        raise ValueError(f"a session's profile holds {', '.join(SESSION_RIG)}: fix them, or "
+                         "leave rig='recording'")
 
 
 def _origin(model: MeasurementModel, models: Sequence[MeasurementModel]
@@ -684,76 +713,6 @@ def _with_movement_timing(model: MeasurementModel, items: Sequence[MeasurementDa
         return list(pool.map(timed, range(len(items))))
 
 
-#: The rig's parameters ``rig="session"`` holds: the movement's duration and acceleration
-#: share, set by the motor's profile all day. Its latency after a command goes with the
-#: serial link and the controller loop and stays per recording: held too (at the first
-#: fits' medians), the simulator's stiffness error grew 0.020 -> 0.065 and its fits with none
-#: of the five key parameters flagged fell 0.950 -> 0.893 (docs/decisions.md).
-SESSION_RIG = ("ramp", "accel")
-
-
-def _session_rig(items: Sequence[MeasurementData], result: FitResult
-                 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Per item, the median of :data:`SESSION_RIG` over its session's usable fits in
-    ``result`` (fits with every parameter free), and the variance of the held values' error
-    for that item, ``(n_items, r, r)`` in the fit's unconstrained coordinates: the
-    session's values' spread beyond their fits' own variance (a robust sd; what a
-    recording's profile departs from the day's), plus the median's variance. An item alone in
-    its session (or with no usable fit in it) holds its own values with its own covariance."""
-    usable = np.isin(result.status, [int(Status.CONVERGED), int(Status.ILL_CONDITIONED)])
-    sessions = np.array([str(d.session) for d in items])
-    law = result.member(0)
-    cols = [law.param_names.index(n) for n in SESSION_RIG]
-    u = np.stack(result.u)[:, cols]
-    spread = np.stack([_block(result, i, SESSION_RIG) for i in range(len(items))])
-    held_u = u.copy()
-    for s in np.unique(sessions):
-        pick = (sessions == s) & usable
-        if pick.sum() < 2:
-            continue
-        centre = np.median(u[pick], axis=0)
-        robust_var = (1.4826 * np.median(np.abs(u[pick] - centre), axis=0)) ** 2
-        fit_var = np.nanmedian(np.diagonal(spread[pick], axis1=1, axis2=2), axis=0)
-        between = np.clip(robust_var - np.nan_to_num(fit_var), 0.0, None)
-        held_u[sessions == s] = centre
-        spread[sessions == s] = np.diag(between + np.pi / 2 * robust_var / pick.sum())
-    held = {n: law.params[c].to_physical(held_u[:, k])
-            for k, (n, c) in enumerate(zip(SESSION_RIG, cols, strict=True))}
-    return held, spread
-
-
-def _block(result: FitResult, i: int, names: Sequence[str]) -> np.ndarray:
-    """The covariance of ``names`` in item ``i``'s fit (its unconstrained coordinates; NaN
-    where not computed)."""
-    free = result.free_names(i)
-    at = [free.index(n) for n in names]
-    return np.asarray(result.cov[i])[np.ix_(at, at)]
-
-
-def _held_covariance(model: MeasurementModel, free_fit: FitResult, spread: np.ndarray,
-                     held: Mapping, rows: np.ndarray | None = None) -> np.ndarray:
-    """Per item (of ``rows``), the covariance the session's held profile adds to ``model``'s
-    free parameters (those not in ``held``; unconstrained coordinates): ``B V B^T``, with
-    ``V`` the held values' error variance (``spread``, :func:`_session_rig`) and ``B`` the
-    parameters' shift per unit shift of the held ones, ``Sigma_fh Sigma_hh^-1`` in the
-    covariance of ``free_fit`` (every parameter of the law fitted from the data free; a
-    parameter that law lacks gets no share). Zero where that covariance was not computed."""
-    rows = np.arange(free_fit.n_trials) if rows is None else rows
-    free = [n for n in model.param_names if n not in held]
-    out = np.zeros((len(rows), len(free), len(free)))
-    for k, i in enumerate(rows):
-        names = free_fit.free_names(i)
-        cov = np.asarray(free_fit.cov[i])
-        h = [names.index(n) for n in SESSION_RIG]
-        if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(spread[i]))):
-            continue
-        cross = np.array([cov[names.index(n), h] if n in names else np.zeros(len(h))
-                          for n in free])
-        b = np.linalg.lstsq(cov[np.ix_(h, h)], cross.T, rcond=1e-12)[0].T
-        out[k] = b @ spread[i] @ b.T
-    return out
-
-
 #: The LM's tolerances for a first fit that a second one polishes: it only has to come near
 #: the optimum (docs/decisions.md, "Whole-measurement fits").
 FIRST_FIT_TOLERANCES = {"ftol": 1e-4, "xtol": 1e-6}
@@ -772,7 +731,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
     ``restart=False``: no slow branch solved again (:func:`_slow_branch_restarted`; for
     fits started from an optimum where it was). ``held_cov``: per item, the covariance that
-    held values' own uncertainty adds to the free parameters (:func:`_held_covariance`).
+    held values' own uncertainty adds to the free parameters
+    (:func:`~frictionfit.fit.session.held_covariance`).
 
     The pools run in one host thread: the contact simulation's Jacobian is a host
     callback (:mod:`frictionfit.models._forward`) that shares its rows over the cores

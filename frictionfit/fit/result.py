@@ -63,6 +63,9 @@ class FitResult:
         Per trial, the covariance of the free parameters' estimates in the fit's
         unconstrained coordinates (rows in the order of :meth:`free_names`; scaled by the
         reduced chi-square as lmfit's ``covar``; NaN where it could not be computed).
+    session_rigs : dict, optional
+        Whole fits with the session's motor profile held: session -> the
+        :class:`~frictionfit.fit.session.SessionRig` held (``None`` otherwise).
     block_var : ndarray, optional
         Whole-measurement fits: per trial, the variance (N^2) of one weighted block
         residual that ``cov`` implies (the reduced chi-square times the AR(1) inflation
@@ -98,6 +101,7 @@ class FitResult:
     block_var: np.ndarray | None = field(default=None, repr=False)
     ndata: np.ndarray | None = field(default=None, repr=False)
     nvarys: np.ndarray | None = field(default=None, repr=False)
+    session_rigs: dict | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         from collections import Counter
