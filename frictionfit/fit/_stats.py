@@ -99,6 +99,12 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
     return flags
 
 
+def _pairs(corr: np.ndarray, names: list[str]) -> dict:
+    """``(name_a, name_b) -> correlation`` of each pair (a before b) of a correlation matrix."""
+    return {(a, b): float(corr[ja, jb]) for ja, a in enumerate(names)
+            for jb, b in enumerate(names) if jb > ja}
+
+
 def _wider_than_value(par, value: float, stderr: float) -> bool:
     """A positive parameter whose standard error exceeds its value."""
     return not par.signed and stderr > abs(value)
@@ -125,9 +131,7 @@ def widen(model: ContactModel, u: np.ndarray, stats: dict, free: tuple[int, ...]
             par = model.params[free[jj]]
             if name not in flags and _wider_than_value(par, values[name], errs[name]):
                 flags[name] = "stderr > value"
-        stats["correl"][i] = {(a, b): float(cov[ja, jb] / max(sd[ja] * sd[jb], 1e-300))
-                              for ja, a in enumerate(names) for jb, b in enumerate(names)
-                              if jb > ja}
+        stats["correl"][i] = _pairs(cov / np.maximum(np.outer(sd, sd), 1e-300), names)
         flag_gated(flags, values, errs)
 
 
@@ -207,9 +211,7 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     for i in range(u.shape[0]):
         values.append({nm: float(phys[j][i]) for j, nm in enumerate(names)})
         # the physical maps are increasing: correlations carry over from the fit's coordinates
-        correls.append({(a, b): float(corr[i, ja, jb]) if ok[i] else np.nan
-                        for ja, a in enumerate(free_names)
-                        for jb, b in enumerate(free_names) if jb > ja})
+        correls.append(_pairs(corr[i] if ok[i] else np.full_like(corr[i], np.nan), free_names))
         if not ok[i]:  # non-finite Jacobian: statistics undefined; flag, don't raise
             stderrs.append(dict.fromkeys(names, np.nan))
             flags.append(dict.fromkeys(names, "singular"))
