@@ -176,9 +176,8 @@ class PhysicalFeatures(RecordingFeatures):
         alone), or once per session: the median over the session's recordings that share
         a batch (64 recordings; a lone recording has its own), so a recording's
         features then depend on which recordings are featurised with it. On the lab
-        stand-in ``"session"``, holding the latency too, scored 0.952 alone (0.967 with the
-        measured quantities) in batches of 16 recordings, 0.924 (0.955) in batches of 64
-        (decisions.md).
+        stand-in, leaving one session out, ``"session"`` scored 0.938 alone (0.960 with the
+        measured quantities), against 0.948 (0.969) per recording (results.md).
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
