@@ -47,6 +47,7 @@ def test_a_short_chain_is_flagged_not_converged_and_still_reported(both):
     assert all("NOT CONVERGED after 100 steps" in r for r in mc.reason[:2])
     assert all(mc.chains[i].n_steps == 100 for i in range(2))
     assert np.isfinite(mc.sd[0]["k"]) and np.isfinite(mc.tau[0]["k"])
+    assert np.isfinite(mc.rhat[0]["k"]) and "max R-hat" in mc.reason[0]
 
 
 @pytest.mark.slow
@@ -59,6 +60,7 @@ def test_laplace_and_emcee_agree_where_gaussian_and_differ_on_skewed_stiffness(f
     for i in range(2):
         chain = mc.chains[i]
         assert chain.n_steps >= 50 * chain.tau.max() and chain.acceptance >= 0.1
+        assert np.nanmax(list(mc.rhat[i].values())) <= 1.01
         # offset and f_kin are Gaussian here (their profile drops match 2.0 to 0.03):
         # medians within 0.3 posterior sd (MC error ~0.05 sd at ESS > 400), sds within 20 %.
         for name in ("offset", "f_kin"):
@@ -79,18 +81,19 @@ def test_a_trial_whose_fit_failed_is_skipped_and_named(both):
         assert np.isnan(post.sd[2]["k"])
 
 
-def test_tables_carry_quantiles_sd_tau_ess_and_flags(both):
+def test_tables_carry_quantiles_sd_tau_ess_rhat_and_flags(both):
     _, mc, _ = both
     wide = mc.to_frame()
     assert {"k_median [N/mm]", "k_p2.5 [N/mm]", "k_p97.5 [N/mm]", "k_sd [N/mm]",
-            "k_tau [steps]", "k_ess", "uq_converged", "uq_acceptance"} <= set(wide.columns)
+            "k_tau [steps]", "k_ess", "k_rhat", "uq_converged",
+            "uq_acceptance"} <= set(wide.columns)
     long = posterior_summary(mc)
     assert len(long) == 3 * get_model(MODEL).n_params
     row = long[(long.trial == 0) & (long.param == "k")].iloc[0]
     assert row["p16"] < row["median"] < row["p84"] and row["unit"] == "N/mm"
     printed = str(long)  # every column is printed, none hidden behind '...'
     assert "..." not in printed and all(c in printed.splitlines()[0]
-                                        for c in ("sd", "tau", "ess", "acceptance"))
+                                        for c in ("sd", "tau", "ess", "rhat", "acceptance"))
 
 
 def test_arviz_corner_and_hdf5_chains(both, tmp_path):

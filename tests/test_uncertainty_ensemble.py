@@ -206,3 +206,43 @@ def test_integrated_time_is_emcees_estimator(rng):
             x[k] = rho * x[k - 1] + e[k] if k else e[k]
         np.testing.assert_allclose(integrated_time(x),
                                    emcee.autocorr.integrated_time(x, tol=0), rtol=1e-10)
+
+
+def test_split_rhat_is_arviz_rank_rhat(rng):
+    import warnings
+
+    from frictionfit.uncertainty._ensemble import split_rhat
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # arviz announces its refactor
+        import arviz as az
+    x = rng.standard_normal((301, 12, 3))  # an odd length: the middle step is dropped
+    x[:, 0, 1] += 2.0  # one walker elsewhere
+    x[100:250, 5, 2] = x[100, 5, 2]  # one walker stuck: ties in the ranks
+    ours = split_rhat(x)
+    theirs = [az.rhat(x[..., j].T, method="rank") for j in range(3)]  # (chain, draw)
+    np.testing.assert_allclose(ours, theirs, rtol=1e-12)
+    assert ours[0] < 1.01 < ours[1]
+
+
+def test_walkers_that_disagree_are_not_converged_though_tau_is_short(rng):
+    from frictionfit.uncertainty._ensemble import RHAT_MAX, _extend, _Trial
+    from frictionfit.uncertainty._proposal import Proposal
+
+    def trial(offset):
+        tr = _Trial(0, Proposal.from_laplace(np.zeros(2), np.eye(2)), [])
+        result = None
+        for _ in range(3):  # independent draws: tau ~ 1, stable, far below 50 tau
+            block = rng.standard_normal((200, 10, 2))
+            block[:, 0] += offset  # walker 0 sits elsewhere all along
+            result = _extend(tr, block, np.zeros((200, 10)), np.full(10, 200.0),
+                             max_steps=600, min_tau_multiple=50, tau_rtol=1.0,
+                             min_acceptance=0.1)
+            if result is not None:
+                break
+        return result
+
+    agree, disagree = trial(0.0), trial(1.5)
+    assert agree.converged and agree.n_steps == 400 and np.all(agree.rhat <= RHAT_MAX)
+    assert disagree.tau.max() < 600 / 50  # the tau rule alone would pass it
+    assert not disagree.converged and disagree.n_steps == 600 and disagree.rhat.max() > 1.05

@@ -75,7 +75,7 @@ def test_laplace_is_deterministic_given_the_seed(fitted, laplace):
 def test_emcee_agrees_with_laplace_on_a_well_identified_recording(fitted, laplace, tmp_path):
     items, res = fitted
     mc = measurement_posterior(take_trials(res, [0]), items[:1], method="emcee", seed=0,
-                              max_steps=600)
+                              max_steps=2000)
     assert mc.method == ["emcee"] and mc.converged[0], mc.reason
     for name in IDENTIFIED:
         sd = laplace.sd[0][name]

@@ -53,8 +53,9 @@ from frictionfit.uncertainty._logpost import (
 from frictionfit.uncertainty.laplace import laplace, profile_disagreement
 from frictionfit.uncertainty.posterior import QUANTILES, Posterior
 
-__all__ = ["AUTO_MAX_COND", "AUTO_MAX_PROFILE_DEV", "METHODS", "SamplerSettings", "TrialGroup",
-           "auto_reason", "emcee_summary", "sample_posterior", "store_chain"]
+__all__ = ["AUTO_MAX_COND", "AUTO_MAX_PROFILE_DEV", "METHODS", "ROW_STATS", "SamplerSettings",
+           "TrialGroup", "auto_reason", "blank_rows", "emcee_summary", "nan_summary", "put_summary",
+           "sample_posterior", "store_chain"]
 
 METHODS = ("laplace", "emcee", "auto")
 #: ``auto``: condition number of the unit-diagonal Hessian above which emcee is used.
@@ -133,17 +134,43 @@ def _laplace_summary(model, mode, cov):
     return quant, sd
 
 
-def emcee_summary(model, chain: ChainResult):
+#: A row's statistics per parameter besides its quantiles: posterior sd (physical unit),
+#: and emcee's integrated autocorrelation time (steps), effective sample size and R-hat.
+ROW_STATS = ("sd", "tau", "ess", "rhat")
+
+
+def blank_rows(n: int) -> dict:
+    """The fields of a :class:`Posterior` of ``n`` rows, none filled yet (method "none")."""
+    return dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
+                quantiles=[None] * n, **{k: [None] * n for k in ROW_STATS},
+                acceptance=np.full(n, np.nan), chains=[None] * n)
+
+
+def nan_summary(names) -> dict:
+    """A row's quantiles and :data:`ROW_STATS`, NaN for every parameter in ``names``."""
+    return ({"quantiles": {p: np.full(len(QUANTILES), np.nan) for p in names}}
+            | {k: dict.fromkeys(names, np.nan) for k in ROW_STATS})
+
+
+def emcee_summary(model, chain: ChainResult) -> dict:
+    """A row's quantiles and :data:`ROW_STATS` from its chain (unconstrained samples)."""
     flat = chain.samples.reshape(-1, chain.samples.shape[-1])
-    ess = chain.ess()
-    quant, sd, tau, ess_d = {}, {}, {}, {}
+    stats = {"tau": chain.tau, "ess": chain.ess(),
+             "rhat": np.full(len(model.params), np.nan) if chain.rhat is None else chain.rhat}
+    out = nan_summary(model.param_names)
     for j, par in enumerate(model.params):
         phys = np.asarray(par.to_physical(flat[:, j]))
-        quant[par.name] = np.quantile(phys, list(QUANTILES.values()))
-        sd[par.name] = float(np.std(phys, ddof=1))
-        tau[par.name] = float(chain.tau[j])
-        ess_d[par.name] = float(ess[j])
-    return quant, sd, tau, ess_d
+        out["quantiles"][par.name] = np.quantile(phys, list(QUANTILES.values()))
+        out["sd"][par.name] = float(np.std(phys, ddof=1))
+        for key, values in stats.items():
+            out[key][par.name] = float(values[j])
+    return out
+
+
+def put_summary(out: dict, i: int, summary: dict) -> None:
+    """Row ``i``'s summary (:func:`emcee_summary`, :func:`nan_summary`) into ``out``."""
+    for key, value in summary.items():
+        out[key][i] = value
 
 
 #: Rows of one batched log-posterior call: per row, 256 was the fastest of 32-1024 on
@@ -242,9 +269,7 @@ def sample_posterior(
     start = time.perf_counter()
     trials = _inputs(fit, y, t, drive_input)
     n = trials.n_trials
-    out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
-               quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
-               acceptance=np.full(n, np.nan), chains=[None] * n)
+    out = blank_rows(n)
     for name in dict.fromkeys(fit.model):
         model = get_model(name, stroke_mm=getattr(fit, "stroke_mm", 1.0),
                           priors=getattr(fit, "priors", None))
@@ -290,11 +315,9 @@ def _inputs(fit: FitResult, y, t, drive_input) -> Trials:
 def _sampled_rows(fit: FitResult, model: ContactModel, out: dict) -> np.ndarray:
     """The rows fitted with ``model`` that can be sampled; the others get NaN summaries
     and the reason in ``out``."""
-    nan = {p: np.nan for p in model.param_names}
     rows = np.array([i for i in range(fit.n_trials) if fit.model[i] == model.name])
     for i in rows:
-        out["quantiles"][i] = {p: np.full(len(QUANTILES), np.nan) for p in nan}
-        out["sd"][i], out["tau"][i], out["ess"][i] = dict(nan), dict(nan), dict(nan)
+        put_summary(out, i, nan_summary(model.param_names))
     held = [i for i in rows if {"fixed", "tied"} & set(fit.flags[i].values())]
     ok = np.array([fit.status[i] not in _SKIP and np.all(np.isfinite(fit.u[i]))
                    and i not in held for i in rows], dtype=bool)
@@ -410,12 +433,17 @@ def store_chain(model, i: int, chain, out: dict) -> None:
     out["chains"][i] = chain
     out["converged"][i] = chain.converged
     out["acceptance"][i] = chain.acceptance
-    out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = emcee_summary(
-        model, chain)
+    put_summary(out, i, emcee_summary(model, chain))
     if not chain.converged:
-        tau = np.asarray(chain.tau)[np.isfinite(chain.tau)]
-        longest = f"{tau.max():.1f}" if tau.size else "not estimated"
-        out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps "
-                             f"(max tau {longest}, acceptance {chain.acceptance:.2f})")
+        out["reason"][i] += (f"; NOT CONVERGED after {chain.n_steps} steps (max tau "
+                             f"{_largest(chain.tau, '.1f')}, max R-hat "
+                             f"{_largest(chain.rhat, '.3f')}, acceptance {chain.acceptance:.2f})")
+
+
+def _largest(values, fmt: str) -> str:
+    """The largest finite entry of ``values``, formatted, or "not estimated"."""
+    finite = np.asarray([] if values is None else values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return format(finite.max(), fmt) if finite.size else "not estimated"
 
 

@@ -51,8 +51,16 @@ from frictionfit.fit.measurement import (
 from frictionfit.models import MeasurementModel
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import log_logistic
-from frictionfit.uncertainty.engine import METHODS, auto_reason, emcee_summary, store_chain
-from frictionfit.uncertainty.posterior import QUANTILES, Posterior
+from frictionfit.uncertainty.engine import (
+    METHODS,
+    auto_reason,
+    blank_rows,
+    emcee_summary,
+    nan_summary,
+    put_summary,
+    store_chain,
+)
+from frictionfit.uncertainty.posterior import Posterior
 
 __all__ = ["measurement_posterior"]
 
@@ -104,13 +112,13 @@ def _laplace_draws(mode: np.ndarray, cov: np.ndarray, n_draws: int,
     return mode + (z * np.sqrt(np.maximum(w, 0.0))) @ v.T
 
 
-def _laplace_summary(model: MeasurementModel, draws: np.ndarray):
-    """Quantiles and sd (physical) of full unconstrained ``draws (n, p)``; tau and ESS NaN
-    (independent draws)."""
+def _laplace_summary(model: MeasurementModel, draws: np.ndarray) -> dict:
+    """Quantiles and sd (physical) of full unconstrained ``draws (n, p)``; the chain
+    statistics NaN (independent draws)."""
     nan = np.full(model.n_params, np.nan)
-    quant, sd, tau, ess = emcee_summary(
+    summary = emcee_summary(
         model, ChainResult(draws[:, None, :], nan, len(draws), 0, 1, np.nan, False))
-    return quant, sd, dict.fromkeys(tau, np.nan), dict.fromkeys(ess, np.nan)
+    return nan_summary(model.param_names) | {k: summary[k] for k in ("quantiles", "sd")}
 
 
 def measurement_posterior(
@@ -170,14 +178,12 @@ def measurement_posterior(
         raise FitError(f"{len(items)} items but the fit has {fit.n_trials} rows")
     start = time.perf_counter()
     n = fit.n_trials
-    out = dict(method=["none"] * n, reason=[""] * n, converged=np.zeros(n, dtype=bool),
-               quantiles=[None] * n, sd=[None] * n, tau=[None] * n, ess=[None] * n,
-               acceptance=np.full(n, np.nan), chains=[None] * n)
+    out = blank_rows(n)
     groups: dict = {}
     for i in range(n):
         model = fit.member(i)
         free = tuple(model.param_names.index(p) for p in fit.free_names(i))
-        _nan_row(model, i, out)
+        put_summary(out, i, nan_summary(model.param_names))
         why = _unusable(fit, i)
         if why:
             out["reason"][i] = f"skipped: {why}"
@@ -190,12 +196,6 @@ def measurement_posterior(
                            max_steps=max_steps, check_every=check_every,
                            min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
     return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
-
-
-def _nan_row(model: MeasurementModel, i: int, out: dict) -> None:
-    nan = dict.fromkeys(model.param_names, np.nan)
-    out["quantiles"][i] = {p: np.full(len(QUANTILES), np.nan) for p in model.param_names}
-    out["sd"][i], out["tau"][i], out["ess"][i] = dict(nan), dict(nan), dict(nan)
 
 
 def _unusable(fit: FitResult, i: int) -> str:
@@ -239,8 +239,7 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
 
 def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) -> None:
     out["method"][i] = "laplace"
-    out["quantiles"][i], out["sd"][i], out["tau"][i], out["ess"][i] = _laplace_summary(
-        model, draws)
+    put_summary(out, i, _laplace_summary(model, draws))
     out["converged"][i] = int(fit.status[i]) == Status.CONVERGED
     pinned = [n for n, f in fit.flags[i].items() if f in VANISHING]
     if pinned:  # the Gaussian has (almost) no width there: no interval
@@ -322,12 +321,13 @@ def _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, kw: dict) -> Non
         if isinstance(chain, BaseException):
             out["reason"][i] = f"emcee failed: {chain}"
             out["converged"][i] = False
-            _nan_row(model, i, out)
+            put_summary(out, i, nan_summary(model.param_names))
             continue
         full = np.broadcast_to(u_hat[k], (*chain.samples.shape[:2], model.n_params)).copy()
         full[..., free_l] = chain.samples
         chain.samples = full
-        tau = np.full(model.n_params, np.nan)  # fixed parameters: no chain statistics
-        tau[free_l] = chain.tau
-        chain.tau = tau
+        for key in ("tau", "rhat"):  # fixed parameters: no chain statistics
+            full_stat = np.full(model.n_params, np.nan)
+            full_stat[free_l] = getattr(chain, key)
+            setattr(chain, key, full_stat)
         store_chain(model, i, chain, out)

@@ -30,13 +30,15 @@ class Posterior:
     reason : list of str
         Why that method (the ``auto`` policy's reason) or why the trial was skipped.
     converged : ndarray of bool
-        emcee: chain >= 50 tau, tau stable, acceptance checked; Laplace: finite
-        covariance. A False trial's numbers are reported but must not be trusted.
+        emcee: chain >= 50 tau, tau stable, R-hat over the walkers <= 1.01 on every
+        parameter, acceptance checked; Laplace: finite covariance. A False trial's numbers
+        are reported but must not be trusted.
     quantiles : list of dict
         Per parameter, the values at :data:`QUANTILES` (physical unit).
-    sd, tau, ess : list of dict
+    sd, tau, ess, rhat : list of dict
         Per parameter: posterior sd (physical unit), integrated autocorrelation time
-        (steps) and effective sample size (NaN for Laplace).
+        (steps), effective sample size and rank-normalised split R-hat over the walkers
+        (the last three NaN for Laplace and for parameters held fixed).
     acceptance : ndarray
         Mean emcee acceptance fraction per trial (NaN for Laplace).
     chains : list
@@ -53,6 +55,7 @@ class Posterior:
     sd: list[dict]
     tau: list[dict]
     ess: list[dict]
+    rhat: list[dict]
     acceptance: np.ndarray
     chains: list[ChainResult | None] = field(repr=False)
     wall_s: float = 0.0
@@ -72,7 +75,8 @@ class Posterior:
                              for j, p in enumerate(model.params)})
 
     def to_frame(self, ids=None) -> pd.DataFrame:
-        """One row per trial: method, converged, and per parameter each quantile, sd, tau, ESS."""
+        """One row per trial: method, converged, and per parameter each quantile, sd, tau,
+        ESS and R-hat."""
         rows = []
         for i in range(self.n_trials):
             row = {"trial": i if ids is None else ids[i], "uq_method": self.method[i],
@@ -85,6 +89,7 @@ class Posterior:
                 row[f"{name}_sd [{unit}]"] = self.sd[i][name]
                 row[f"{name}_tau [steps]"] = self.tau[i][name]
                 row[f"{name}_ess"] = self.ess[i][name]
+                row[f"{name}_rhat"] = self.rhat[i][name]
             rows.append(row)
         return pd.DataFrame(rows)
 
@@ -97,7 +102,8 @@ def _member(name: str):
 
 
 class SummaryTable(pd.DataFrame):
-    """A DataFrame that prints every row and column (``print`` shows sd, tau and ESS too)."""
+    """A DataFrame that prints every row and column (``print`` shows sd, tau, ESS and
+    R-hat too)."""
 
     @property
     def _constructor(self):
@@ -113,7 +119,7 @@ def posterior_summary(post: Posterior, ids=None) -> SummaryTable:
     """Long table, one row per trial x parameter, for features and reports.
 
     Columns: ``trial, model, param, unit, method, converged, median, sd, p2.5,
-    p16, p84, p97.5, tau, ess, acceptance`` (values in the parameter's unit).
+    p16, p84, p97.5, tau, ess, rhat, acceptance`` (values in the parameter's unit).
     Use ``median`` with ``sd`` (e.g. inverse-variance weights ``1/sd**2``) and
     drop or down-weight rows with ``converged == False``. Printed whole.
     """
@@ -124,6 +130,7 @@ def posterior_summary(post: Posterior, ids=None) -> SummaryTable:
                    "unit": PARAMS[name].unit, "method": post.method[i],
                    "converged": bool(post.converged[i]), "sd": post.sd[i][name],
                    "tau": post.tau[i][name], "ess": post.ess[i][name],
+                   "rhat": post.rhat[i][name],
                    "acceptance": post.acceptance[i]}
             row.update(zip(QUANTILES, q, strict=True))
             rows.append(row)
