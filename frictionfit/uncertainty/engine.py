@@ -8,7 +8,7 @@ data it was fitted to and returns a :class:`Posterior` per trial, by one of
   every running trial, each moved only by its own trial's proposal, so one batched
   JAX call per step evaluates them all; in log coordinates with an adaptive
   independence proposal (pilot-fitted; see ``_ensemble``), each trial run until its
-  chain is >= 50 integrated autocorrelation times long;
+  chain is >= 50 integrated autocorrelation times long and its walkers agree (R-hat);
 - ``"auto"`` (default): Laplace, except emcee for the trials where Laplace is
   not to be trusted: the fit did not end ``CONVERGED`` (e.g. ill-conditioned),
   a parameter is flagged "at bound" or "singular" by the fit, the Hessian's
