@@ -236,11 +236,13 @@ def _extend(tr: _Trial, chain, log_prob, accepted, max_steps, min_tau_multiple, 
     tau_old = np.full(chain.shape[-1], np.inf) if tr.tau is None else tr.tau
     tr.tau = integrated_time(np.concatenate(tr.chain))
     stable = np.all(np.abs(tau_old - tr.tau) < tau_rtol * tr.tau)
-    converged = bool(np.all(np.isfinite(tr.tau)) and stable
-                     and tr.n_steps >= min_tau_multiple * tr.tau.max()
-                     and not np.any(_rhat_after_burn(tr) > RHAT_MAX))
-    if converged or tr.n_steps >= max_steps:
-        return _result(tr, min_acceptance, converged)
+    long_enough = bool(np.all(np.isfinite(tr.tau)) and stable
+                       and tr.n_steps >= min_tau_multiple * tr.tau.max())
+    if long_enough or tr.n_steps >= max_steps:
+        rhat = _rhat_after_burn(tr)
+        converged = long_enough and not np.any(rhat > RHAT_MAX)
+        if converged or tr.n_steps >= max_steps:
+            return _result(tr, min_acceptance, converged, rhat)
     if tr.refits and tr.n_steps >= tr.refits[0] and np.any(tr.tau > REFIT_MIN_TAU):
         tr.refits.pop(0)
         tr.restart()
@@ -264,7 +266,8 @@ def _rhat_after_burn(tr: _Trial) -> np.ndarray:
         return split_rhat(chain)
 
 
-def _result(tr: _Trial, min_acceptance: float, converged: bool) -> ChainResult:
+def _result(tr: _Trial, min_acceptance: float, converged: bool, rhat: np.ndarray
+            ) -> ChainResult:
     chain = np.concatenate(tr.chain)
     tau = tr.tau
     acceptance = float(np.mean(tr.accepted) / len(chain))
@@ -273,8 +276,7 @@ def _result(tr: _Trial, min_acceptance: float, converged: bool) -> ChainResult:
     thin = max(1, int(0.5 * np.nanmin(tau))) if finite else 1
     samples = chain[burn:][thin - 1::thin]
     return ChainResult(samples, tau, len(chain), burn, thin, acceptance,
-                       converged and acceptance >= min_acceptance, tr.n_pilot,
-                       _rhat_after_burn(tr))
+                       converged and acceptance >= min_acceptance, tr.n_pilot, rhat)
 
 
 def _save_chain(backend: emcee.backends.HDFBackend, tr: _Trial) -> None:

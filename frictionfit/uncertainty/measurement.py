@@ -19,8 +19,8 @@ covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximatio
   :func:`~frictionfit.uncertainty._ensemble.run_lockstep` (adaptive independence proposal,
   started from a Gauss-Newton mode and covariance in ``u``, each recording run to >=
   ``min_tau_multiple`` integrated autocorrelation times with its walkers agreeing,
-  R-hat <= 1.01), the density evaluated on the
-  host by the model's compiled loop, every walker of a step in one call.
+  R-hat <= 1.01), the density evaluated on the host by the model's compiled loop, every
+  walker of a step in one call.
 - ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
