@@ -234,15 +234,16 @@ def _extend(tr: _Trial, chain, log_prob, accepted, max_steps, min_tau_multiple, 
     tr.log_prob.append(log_prob)
     tr.accepted = accepted if tr.accepted is None else tr.accepted + accepted
     tau_old = np.full(chain.shape[-1], np.inf) if tr.tau is None else tr.tau
-    tr.tau = integrated_time(np.concatenate(tr.chain))
+    full = np.concatenate(tr.chain)
+    tr.tau = integrated_time(full)
     stable = np.all(np.abs(tau_old - tr.tau) < tau_rtol * tr.tau)
     long_enough = bool(np.all(np.isfinite(tr.tau)) and stable
                        and tr.n_steps >= min_tau_multiple * tr.tau.max())
     if long_enough or tr.n_steps >= max_steps:
-        rhat = _rhat_after_burn(tr)
+        rhat = _rhat_after_burn(full, tr.tau)
         converged = long_enough and not np.any(rhat > RHAT_MAX)
         if converged or tr.n_steps >= max_steps:
-            return _result(tr, min_acceptance, converged, rhat)
+            return _result(tr, full, min_acceptance, converged, rhat)
     if tr.refits and tr.n_steps >= tr.refits[0] and np.any(tr.tau > REFIT_MIN_TAU):
         tr.refits.pop(0)
         tr.restart()
@@ -255,20 +256,19 @@ def _burn(tau: np.ndarray, n_steps: int) -> int:
     return min(int(np.ceil(2 * tau_max)), n_steps - 1)
 
 
-def _rhat_after_burn(tr: _Trial) -> np.ndarray:
-    """R-hat per parameter of a trial's kept chain after its burn-in (NaN under 4 steps,
-    and for a parameter no walker moves: a held one)."""
-    chain = np.concatenate(tr.chain)
-    chain = chain[_burn(tr.tau, len(chain)):]
+def _rhat_after_burn(chain: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """R-hat per parameter of a kept ``chain`` after its burn-in (NaN under 4 steps, and
+    for a parameter no walker moves: a held one)."""
+    chain = chain[_burn(tau, len(chain)):]
     if len(chain) < 4:
         return np.full(chain.shape[-1], np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):  # a frozen walker: NaN
         return split_rhat(chain)
 
 
-def _result(tr: _Trial, min_acceptance: float, converged: bool, rhat: np.ndarray
-            ) -> ChainResult:
-    chain = np.concatenate(tr.chain)
+def _result(tr: _Trial, chain: np.ndarray, min_acceptance: float, converged: bool,
+            rhat: np.ndarray) -> ChainResult:
+    """The trial's :class:`ChainResult` from its whole kept ``chain``."""
     tau = tr.tau
     acceptance = float(np.mean(tr.accepted) / len(chain))
     finite = np.all(np.isfinite(tau))
