@@ -198,7 +198,7 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     scipy-jax measured per-call overhead, 1.1x) and 4 per peer, without the grid;
     under a minute on this machine. ``summary["measurements"]``: truth recovery and
     speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 140
-    measurements: every class, two sessions, two trials; 8 with ``quick``), with its scipy
+    measurements: every class in four sessions; 8 with ``quick``), with its scipy
     peers on 4 of them (``scipy-numpy`` on 2). Timings are medians of interleaved
     repetitions; ``compile_s`` is the first call of ours minus a steady one. The full run
     adds ``summary["measurements_motor_reads"]``: the same measurements with the motor's
