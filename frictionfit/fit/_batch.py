@@ -227,7 +227,9 @@ def fit_trials(
         The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
         Host threads, a pool each (default: the cores this process may use; results do
-        not depend on it, bit for bit).
+        not depend on it, bit for bit). ``"lm"`` only: the optimistix solvers run in one
+        thread, since their batched QR (jaxlib's LAPACK kernel, which splits a batch over
+        XLA's thread pool and waits for the parts) deadlocked when two threads ran it.
 
     Returns
     -------
@@ -271,10 +273,11 @@ def _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk
     else:
         raise FitError(f"solver must be a name from {SOLVERS} or an optimistix "
                        f"least-squares solver, not {type(solver).__name__}")
+    threads = available_cores() if threads is None else max(int(threads), 1)
     return SolverSettings(
         name=name, solver=solver, max_steps=max_steps, segment=steps_per_round,
         chunk_size=chunk_size,
-        threads=available_cores() if threads is None else max(int(threads), 1))
+        threads=threads if isinstance(solver, BatchedLevenbergMarquardt) else 1)
 
 
 #: The names of SOLVERS' solver classes, for FitResult.solver.
