@@ -45,10 +45,11 @@ RECOVERY_N = 140
 def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x", n_peer: int = 4,
              n_numpy: int = 2, position_rate_hz: float = 0.0) -> dict:
     """Fit ``n`` simulated measurements (every class in turn, in session 1, then 2, ...;
-    one trial each) twice; the second call is timed. Returns the summary dict of the ``measurements``
-    block of ``bench fit``: errors per parameter, the share of fits whose +-1 stderr
-    interval holds the truth (nominally 0.68; +-1.96 stderr: 0.95; a parameter absent from
-    the chosen law counts as not covered), speed, and ``peers``: scipy's LM on the first
+    one trial each) twice; the second call is timed. Returns the summary dict of the
+    ``measurements`` block of ``bench fit``: errors per parameter, the share of fits whose
+    +-1 stderr interval holds the truth (nominally 0.68; +-1.96 stderr: 0.95; a parameter
+    absent from the chosen law counts as not covered), speed, and ``peers``: scipy's LM on
+    the first
     ``n_peer`` recordings, on the NumPy objective on the first ``n_numpy`` (seconds per
     recording each). ``position_rate_hz`` > 0: the measurements carry the motor's position
     reads, and the fits take each movement's timing from them."""
