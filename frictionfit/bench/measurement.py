@@ -49,10 +49,9 @@ def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x", n_pee
     ``measurements`` block of ``bench fit``: errors per parameter, the share of fits whose
     +-1 stderr interval holds the truth (nominally 0.68; +-1.96 stderr: 0.95; a parameter
     absent from the chosen law counts as not covered), speed, and ``peers``: scipy's LM on
-    the first
-    ``n_peer`` recordings, on the NumPy objective on the first ``n_numpy`` (seconds per
-    recording each). ``position_rate_hz`` > 0: the measurements carry the motor's position
-    reads, and the fits take each movement's timing from them."""
+    the first ``n_peer`` recordings, on the NumPy objective on the first ``n_numpy``
+    (seconds per recording each). ``position_rate_hz`` > 0: the measurements carry the
+    motor's position reads, and the fits take each movement's timing from them."""
     specs = [(1 + i // len(CLASSES), CLASSES[i % len(CLASSES)], 1) for i in range(n)]
     recs = simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz)
     items = [measurement_data(r, channel) for r in recs]
