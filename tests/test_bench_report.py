@@ -85,7 +85,8 @@ def test_failed_stage_is_listed_not_merged():
 
 def test_whole_measurements_list_recovery_and_both_peers():
     peer = {"n_recordings": 2, "s_per_recording": 9.0, "ours_s_per_recording": 0.25,
-            "speedup": 36.0, "cost_rel_diff": 2e-6}
+            "speedup": 36.0, "median_cost_rel_diff": 2e-6,
+            "n_peer_cost_higher": 0, "n_peer_cost_lower": 0}
     meas = {"n_recordings": 8, "channel": "index_x", "recordings_per_s": 3.0, "compile_s": 20.0,
             "converged_rate": 1.0, "converged_unflagged_rate": 0.875,
             "median_rel_error_by_param": {"k": 0.05}, "median_signed_error_by_param": {"k": 0.01},

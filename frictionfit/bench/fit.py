@@ -199,7 +199,8 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     under a minute on this machine. ``summary["measurements"]``: truth recovery and
     speed of whole-measurement fits (:func:`frictionfit.bench.measurement.recovery`; 140
     measurements: every class in four sessions; 8 with ``quick``), with its scipy
-    peers on 4 of them (``scipy-numpy`` on 2). Timings are medians of interleaved
+    peers on 16 of them (:data:`~frictionfit.bench.measurement.PEER_N`; all 8 with ``quick``;
+    ``scipy-numpy`` on 2). Timings are medians of interleaved
     repetitions; ``compile_s`` is the first call of ours minus a steady one. The full run
     adds ``summary["measurements_motor_reads"]``: the same measurements with the motor's
     position read at 50 Hz, each movement's timing taken from the reads (no peers).

@@ -203,11 +203,14 @@ def _measurements(heading: str, meas: Mapping) -> list[str]:
                      for k, v in meas["median_rel_error_by_param"].items()])
     if meas.get("peers"):
         lines += ["One law (relaxation2), one fit from the same start; ours batched over the "
-                  "peer's recordings. Cost difference: (ours - peer) / peer.", ""]
+                  "peer's recordings. Cost difference: (ours - peer) / peer, median; the "
+                  "peer's optimum higher / lower than ours by more than 0.1 %: on how many "
+                  "recordings.", ""]
         lines += _table(["peer", "recordings", "s / recording", "ours s / recording",
-                         "ours faster by", "cost difference"],
+                         "ours faster by", "cost difference", "peer higher", "peer lower"],
                         [[peer, p["n_recordings"], p["s_per_recording"],
-                          p["ours_s_per_recording"], p["speedup"], p["cost_rel_diff"]]
+                          p["ours_s_per_recording"], p["speedup"], p["median_cost_rel_diff"],
+                          p["n_peer_cost_higher"], p["n_peer_cost_lower"]]
                          for peer, p in meas["peers"].items()])
     return lines
 
