@@ -121,14 +121,18 @@ def _median_error(errors: dict[str, np.ndarray], ok: np.ndarray, names) -> float
 
 
 def _scipy_fits(model, ts, u0, residual, jac):
-    """``scipy.optimize.least_squares(method="lm")`` trial by trial; (u, success)."""
+    """``scipy.optimize.least_squares(method="lm")`` trial by trial; (u, success). Variables
+    scaled by the Jacobian's columns (``x_scale="jac"``, MINPACK's and scipy's default since
+    1.16): on 16 relaxation trials the same median error as ours (0.0098), with unit scales
+    0.0108 (the whole-measurement peers take unit scales: there they converge more often)."""
     from scipy.optimize import least_squares
 
     u = np.empty_like(u0)
     ok = np.zeros(len(u0), dtype=bool)
     for i in range(len(u0)):
         kw = {} if jac is None else {"jac": lambda x, i=i: jac(x, i)}
-        sol = least_squares(lambda x, i=i: residual(x, i), u0[i], method="lm", **kw)
+        sol = least_squares(lambda x, i=i: residual(x, i), u0[i], method="lm", x_scale="jac",
+                            **kw)
         u[i], ok[i] = sol.x, sol.success
     return u, ok
 
