@@ -46,10 +46,9 @@ def test_quick_run_reports_every_summary_number():
     numpy_peer = meas["peers"]["scipy-numpy"]  # scipy's LM on the objective in plain NumPy
     assert numpy_peer["n_recordings"] == 2 and numpy_peer["s_per_recording"] > 0
     # The speed ratios compare like with like: ours reaches the peers' optimum (a median
-    # recording's cost within a tie of theirs, or lower) and its counts add up.
+    # recording's cost within a tie of theirs, or lower).
     for peer in meas["peers"].values():
         assert peer["median_cost_rel_diff"] <= COST_TIE
-        assert peer["n_peer_cost_higher"] + peer["n_peer_cost_lower"] <= peer["n_recordings"]
     assert meas["peers"]["scipy-jax"]["n_recordings"] == 8  # every recording, up to PEER_N
 
 

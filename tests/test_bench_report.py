@@ -86,7 +86,7 @@ def test_failed_stage_is_listed_not_merged():
 def test_whole_measurements_list_recovery_and_both_peers():
     peer = {"n_recordings": 2, "s_per_recording": 9.0, "ours_s_per_recording": 0.25,
             "speedup": 36.0, "median_cost_rel_diff": 2e-6,
-            "n_peer_cost_higher": 0, "n_peer_cost_lower": 0}
+            "n_peer_cost_higher": 1, "n_peer_cost_lower": 0, "cost_tie": 1e-3}
     meas = {"n_recordings": 8, "channel": "index_x", "recordings_per_s": 3.0, "compile_s": 20.0,
             "converged_rate": 1.0, "converged_unflagged_rate": 0.875,
             "median_rel_error_by_param": {"k": 0.05}, "median_signed_error_by_param": {"k": 0.01},
@@ -99,8 +99,9 @@ def test_whole_measurements_list_recovery_and_both_peers():
     assert "| k | 0.05 | 0.01 | 0 | 0.7 |" in md
     with_reads = md.split("## fit: whole measurements, motor read at 50 Hz")[1]
     assert "| k | 0.03 | 0.01 | 0 | 0.7 |" in with_reads and "scipy" not in with_reads
-    assert "| scipy-jax | 4 | 9 | 0.25 | 7 | 2e-06 |" in md
-    assert "| scipy-numpy | 2 | 9 | 0.25 | 36 | 2e-06 |" in md
+    assert "| scipy-jax | 4 | 9 | 0.25 | 7 | 2e-06 | 1 | 0 |" in md
+    assert "| scipy-numpy | 2 | 9 | 0.25 | 36 | 2e-06 | 1 | 0 |" in md
+    assert "by more than 0.1%" in md
 
 
 def test_cli_rejects_unknown_benchmark(tmp_path):

@@ -157,7 +157,7 @@ def _against_peers(items: list, n_numpy: int) -> dict:
                 "ours_s_per_recording": our_s / len(rows), "speedup": peer_s / our_s,
                 "median_cost_rel_diff": float(np.median(diff)),
                 "n_peer_cost_higher": int(np.sum(diff < -COST_TIE)),
-                "n_peer_cost_lower": int(np.sum(diff > COST_TIE))}
+                "n_peer_cost_lower": int(np.sum(diff > COST_TIE)), "cost_tie": COST_TIE}
 
     every, first = range(len(items)), range(min(n_numpy, len(items)))
     for i in every:

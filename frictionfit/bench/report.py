@@ -202,10 +202,11 @@ def _measurements(heading: str, meas: Mapping) -> list[str]:
                       meas.get("stderr_coverage95_by_param", {}).get(k)]
                      for k, v in meas["median_rel_error_by_param"].items()])
     if meas.get("peers"):
+        tie = next(iter(meas["peers"].values()))["cost_tie"]
         lines += ["One law (relaxation2), one fit from the same start; ours batched over the "
                   "peer's recordings. Cost difference: (ours - peer) / peer, median; the "
-                  "peer's optimum higher / lower than ours by more than 0.1 %: on how many "
-                  "recordings.", ""]
+                  f"peer's optimum higher / lower than ours by more than {tie:.1%}: on how "
+                  "many recordings.", ""]
         lines += _table(["peer", "recordings", "s / recording", "ours s / recording",
                          "ours faster by", "cost difference", "peer higher", "peer lower"],
                         [[peer, p["n_recordings"], p["s_per_recording"],
