@@ -130,14 +130,14 @@ def _against_peers(items: list, n_numpy: int) -> dict:
     fun = jax.jit(residual)
     jac = jax.jit(jax.jacfwd(residual))
 
+    lm = dict(method="lm", xtol=1e-8, ftol=1e-6, x_scale=1.0)  # both peers alike
+
     def scipy_jax(i):
         return least_squares(lambda u: np.asarray(fun(u, _row(data, i))), u0[i],
-                             jac=lambda u: np.asarray(jac(u, _row(data, i))),
-                             method="lm", xtol=1e-8, ftol=1e-6, x_scale=1.0).x
+                             jac=lambda u: np.asarray(jac(u, _row(data, i))), **lm).x
 
     def scipy_numpy(i):
-        return least_squares(lambda u: numpy_residual(model, u, items[i]), u0[i],
-                             method="lm", xtol=1e-8, ftol=1e-6, x_scale=1.0).x
+        return least_squares(lambda u: numpy_residual(model, u, items[i]), u0[i], **lm).x
 
     def ours(rows):
         return fit_measurements([items[i] for i in rows], model=model, timing="rig",
