@@ -327,7 +327,9 @@ def fit_measurements(
     ``max_steps``: per fit and item (a few lab channels crawl along a ridge for 200-400
     steps before they converge).
     One law is fitted from the data (``"auto"``: ``relaxation2``), with a second fit on the
-    full grid (the first grid's merged blocks blur a static peak into a fast relaxation).
+    full grid (the first grid's merged blocks blur a static peak into a fast relaxation);
+    with ``rig="recording"``, a fit whose movement duration is an outlier of its session's
+    is fitted again from the session's motor profile, the lower BIC kept (:data:`RIG_OUTLIER_SDS`).
     Each other law is fitted from an optimum on the items where it can still be chosen:
     ``no_peak2`` (:data:`SHRUNK_FROM`) from ``relaxation2``'s where its static peak is not
     measured, then ``rich`` (:data:`GROWN_FROM`) from ``relaxation2``'s where that law is
@@ -353,19 +355,11 @@ def fit_measurements(
                          f"law fitted from the data), not {np.shape(u0)[-1]}")
     start = time.perf_counter()
     kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
-    again = rig != "recording" or timing == "movement"  # a second fit polishes the first
-    coarse = [_halved(d) for d in items] if again else items
-    # a first fit that a second polishes: looser tolerances, and no statement of its own
-    loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
-    first = _fit(coarse, model=base, fix=_held_of(base, fix, models), u0=u0, **kw, **loose)
-    if timing == "movement":
-        items = _with_movement_timing(base, items, first)
-    fits = {base.law: first}
-    if again:  # again on the full grid (for the session's profile, a third fit polishes it)
-        fits[base.law] = _fit(items, model=base, u0=np.stack(first.u),
-                              **_broadcast(_held_of(base, fix, models), len(items)), **kw,
-                              **(loose if rig != "recording" else
-                                 dict(tolerances=SECOND_FIT_TOLERANCES)))
+    base_fix = _held_of(base, fix, models)
+    timed, fits = _base_fit(items, base, base_fix, u0, rig, timing, kw)
+    if rig == "recording" and not set(RIG) & set(base_fix):
+        timed, fits = _rig_outliers_refitted(items, timed, fits, base, base_fix, timing, kw)
+    items, fits = timed, {base.law: fits}
     held, error, free_fit, rigs = dict(fix or {}), None, fits[base.law], None
     if rig != "recording":
         sessions = [str(d.session) for d in items]
@@ -392,7 +386,7 @@ def fit_measurements(
         fits[m.law] = start_fit if not at else _fit(
             at, model=m, u0=_from_optimum(m, at, start_fit),
             **_broadcast(_held_of(m, held, models), len(items), rows[m.law]),
-            tolerances=SECOND_FIT_TOLERANCES if again else None,
+            tolerances=SECOND_FIT_TOLERANCES if _polished(rig, timing) else None,
             held_cov=None if error is None else held_covariance(
                 m, free_fit, error, held, rows[m.law]),
             restart=m.law not in GROWN_FROM, **kw)
@@ -402,6 +396,94 @@ def fit_measurements(
     first.session_rigs = rigs
     first.wall_s = time.perf_counter() - start
     return first
+
+
+def _polished(rig, timing: str) -> bool:
+    """Whether a second fit on the full grid polishes a first on merged blocks."""
+    return rig != "recording" or timing == "movement"
+
+
+def _base_fit(items: Sequence[MeasurementData], base: MeasurementModel, fix: Mapping,
+              u0: np.ndarray | None, rig, timing: str, kw: dict,
+              first_fix: Mapping | None = None) -> tuple[list[MeasurementData], FitResult]:
+    """The law fitted from the data (:func:`fit_measurements`' first steps): a first fit on
+    blocks merged in pairs (``first_fix``: values held in it alone), each movement's timing
+    found at its optimum (``"movement"``), and a second fit on the full grid from there.
+    Returns the items with their movements' timing and the fit."""
+    again = _polished(rig, timing)
+    coarse = [_halved(d) for d in items] if again else items
+    # a first fit that a second polishes: looser tolerances, and no statement of its own
+    loose = dict(tolerances=FIRST_FIT_TOLERANCES, final=False) if again else {}
+    first = _fit(coarse, model=base, fix=dict(fix) | dict(first_fix or {}), u0=u0, **kw, **loose)
+    items = _with_movement_timing(base, items, first) if timing == "movement" else list(items)
+    if not again:
+        return items, first
+    # again on the full grid (for the session's profile, a third fit polishes it)
+    return items, _fit(items, model=base, u0=np.stack(first.u), **_broadcast(fix, len(items)),
+                       **kw, **(loose if rig != "recording" else
+                                dict(tolerances=SECOND_FIT_TOLERANCES)))
+
+
+#: A fit whose movement duration ``ramp`` lies further from the median of its session's fits
+#: of the same channel (natural log of the ratio) than this many robust sd of theirs (1.4826
+#: median absolute deviations), and at least :data:`RIG_OUTLIER_MIN`, is fitted again: from
+#: the data's guess with the motor's profile (:data:`~frictionfit.models.measurement.RIG`)
+#: held at that session's medians in the first fit, free in the second; the lower BIC is
+#: kept. The motor moves alike in every recording of a day, and a soft material's fit can
+#: settle in a trap where a slower drive and a stiffer, more slippery contact fit nearly as
+#: well (simulator: ramp +17-32 %, ``k`` +30-46 %; docs/decisions.md).
+RIG_OUTLIER_SDS = 3.0
+#: ... and the smallest such deviation (a session whose fits agree to 1 %).
+RIG_OUTLIER_MIN = 0.1
+#: Fewest fits of one session and channel whose median profile such a restart starts from.
+MIN_SESSION_FITS = 5
+
+
+def _rig_starts(items: Sequence[MeasurementData], fit: FitResult) -> dict[int, dict]:
+    """Item -> the motor's profile (:data:`RIG`, physical) to fit it again from: the medians
+    of its session's fits on its channel, for each fit whose ``ramp`` is an outlier among
+    them (:data:`RIG_OUTLIER_SDS`; sessions of at least :data:`MIN_SESSION_FITS`)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, d in enumerate(items):
+        if d.session is not None and np.all(np.isfinite(fit.u[i])):
+            groups.setdefault((str(d.session), d.channel), []).append(i)
+    starts = {}
+    for rows in groups.values():
+        if len(rows) < MIN_SESSION_FITS:
+            continue
+        median = {p: float(np.median(fit.values[p].to_numpy()[rows])) for p in RIG}
+        dev = np.abs(np.log(fit.values["ramp"].to_numpy()[rows] / median["ramp"]))
+        limit = max(RIG_OUTLIER_MIN, RIG_OUTLIER_SDS * 1.4826 * float(np.median(dev)))
+        for i, off in zip(rows, dev > limit, strict=True):
+            if off:
+                starts[i] = median
+    return starts
+
+
+def _rig_outliers_refitted(items: Sequence[MeasurementData], timed: list[MeasurementData],
+                           fit: FitResult, base: MeasurementModel, fix: Mapping, timing: str,
+                           kw: dict) -> tuple[list[MeasurementData], FitResult]:
+    """``timed`` and ``fit`` (:func:`_base_fit` of ``items``) with each fit whose motor
+    profile is off its session's (:func:`_rig_starts`) fitted again from the session's
+    profile (held in the first fit), where that lowers its BIC."""
+    starts = _rig_starts(items, fit)
+    if not starts:
+        return timed, fit
+    rows = np.array(sorted(starts))
+    sub = [items[i] for i in rows]
+    u0 = np.stack([to_unconstrained(base, d.guess | starts[i]) for i, d in zip(rows, sub,
+                                                                                strict=True)])
+    sub_timed, refit = _base_fit(sub, base, _broadcast(fix, len(items), rows)["fix"], u0,
+                                 "recording", timing, kw,
+                                 first_fix={p: np.array([starts[i][p] for i in rows]) for p in RIG})
+    better = np.less(refit.bic, fit.bic[rows])  # False where either is NaN
+    chosen = np.zeros(len(items), dtype=np.int64)
+    chosen[rows[better]] = 1
+    timed = list(timed)
+    for k in np.flatnonzero(better):
+        timed[rows[k]] = sub_timed[k]
+    return timed, _in_order([take_trials(fit, np.flatnonzero(chosen == 0)),
+                             take_trials(refit, np.flatnonzero(better))], chosen)
 
 
 def _check_rig(rig: str | Mapping[str, SessionRig], items: Sequence[MeasurementData],
