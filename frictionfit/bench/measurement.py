@@ -102,10 +102,11 @@ def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
 
 
 def _against_peers(items: list, n_numpy: int) -> dict:
-    """One fit of one law, ours against ``scipy.optimize.least_squares(method="lm")`` from the
-    same starting points (the data's guess), one recording at a time: ``scipy-jax`` on the
-    jitted JAX residual and Jacobian, ``scipy-numpy`` on :func:`numpy_residual` with a
-    finite-difference Jacobian (on the first ``n_numpy`` items: seconds per recording).
+    """One fit of one law (no second start for rig outliers), ours against
+    ``scipy.optimize.least_squares(method="lm")`` from the same starting points (the data's
+    guess), one recording at a time: ``scipy-jax`` on the jitted JAX residual and Jacobian,
+    ``scipy-numpy`` on :func:`numpy_residual` with a finite-difference Jacobian (on the first
+    ``n_numpy`` items: seconds per recording).
 
     scipy's LM runs with unit variable scales (``x_scale=1.0``, its default before scipy
     1.16): with MINPACK's scaling by the Jacobian's columns, today's default, it stopped
@@ -141,7 +142,7 @@ def _against_peers(items: list, n_numpy: int) -> dict:
 
     def ours(rows):
         return fit_measurements([items[i] for i in rows], model=model, timing="rig",
-                                progress=False).u
+                                refit_rig_outliers=False, progress=False).u
 
     def cost(u, i):
         return 0.5 * float(np.sum(numpy_residual(model, np.asarray(u), items[i]) ** 2))

@@ -303,6 +303,7 @@ def fit_measurements(
     max_steps: int = 400,
     pool_size: int = 16,
     progress: bool | None = None,
+    refit_rig_outliers: bool = True,
 ) -> FitResult:
     """Fit ``model`` to every item (``progress``: a bar; default: on a terminal, from 16
     items); ``"auto"``: per item, the first law of :data:`AUTO_LAWS`
@@ -328,8 +329,9 @@ def fit_measurements(
     steps before they converge).
     One law is fitted from the data (``"auto"``: ``relaxation2``), with a second fit on the
     full grid (the first grid's merged blocks blur a static peak into a fast relaxation);
-    with ``rig="recording"``, a fit whose movement duration is an outlier of its session's
-    is fitted again from the session's motor profile, the lower BIC kept (:data:`RIG_OUTLIER_SDS`).
+    with ``rig="recording"`` and ``refit_rig_outliers``, a fit whose movement duration is an
+    outlier of its session's is fitted again from the session's motor profile, the lower BIC
+    kept (:data:`RIG_OUTLIER_SDS`).
     Each other law is fitted from an optimum on the items where it can still be chosen:
     ``no_peak2`` (:data:`SHRUNK_FROM`) from ``relaxation2``'s where its static peak is not
     measured, then ``rich`` (:data:`GROWN_FROM`) from ``relaxation2``'s where that law is
@@ -357,7 +359,7 @@ def fit_measurements(
     kw = dict(max_steps=max_steps, pool_size=pool_size, progress=progress)
     base_fix = _held_of(base, fix, models)
     timed, fits = _base_fit(items, base, base_fix, u0, rig, timing, kw)
-    if rig == "recording" and not set(RIG) & set(base_fix):
+    if refit_rig_outliers and rig == "recording" and not set(RIG) & set(base_fix):
         timed, fits = _rig_outliers_refitted(items, timed, fits, base, base_fix, timing, kw)
     items, fits = timed, {base.law: fits}
     held, error, free_fit, rigs = dict(fix or {}), None, fits[base.law], None
