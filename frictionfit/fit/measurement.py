@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
+from scipy.stats import median_abs_deviation
 from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
@@ -427,13 +428,14 @@ def _base_fit(items: Sequence[MeasurementData], base: MeasurementModel, fix: Map
 
 
 #: A fit whose movement duration ``ramp`` lies further from the median of its session's fits
-#: of the same channel (natural log of the ratio) than this many robust sd of theirs (1.4826
-#: median absolute deviations), and at least :data:`RIG_OUTLIER_MIN`, is fitted again: from
-#: the data's guess with the motor's profile (:data:`~frictionfit.models.measurement.RIG`)
-#: held at that session's medians in the first fit, free in the second; the lower BIC is
-#: kept. The motor moves alike in every recording of a day, and a soft material's fit can
-#: settle in a trap where a slower drive and a stiffer, more slippery contact fit nearly as
-#: well (simulator: ramp +17-32 %, ``k`` +30-46 %; docs/decisions.md).
+#: of the same channel (natural log of the ratio) than this many robust sd of theirs (the
+#: median absolute deviation, normal scale), and at least :data:`RIG_OUTLIER_MIN`, is fitted
+#: again: from the data's guess with the motor's profile
+#: (:data:`~frictionfit.models.measurement.RIG`) held at that session's medians in the first
+#: fit, free in the second; the lower BIC is kept. The motor moves alike in every recording
+#: of a day, and a soft material's fit can settle in a trap where a slower drive and a
+#: stiffer, more slippery contact fit nearly as well (simulator: ramp +17-32 %, ``k``
+#: +30-46 %; docs/decisions.md).
 RIG_OUTLIER_SDS = 3.0
 #: ... and the smallest such deviation (a session whose fits agree to 1 %).
 RIG_OUTLIER_MIN = 0.1
@@ -454,9 +456,10 @@ def _rig_starts(items: Sequence[MeasurementData], fit: FitResult) -> dict[int, d
         if len(rows) < MIN_SESSION_FITS:
             continue
         median = {p: float(np.median(fit.values[p].to_numpy()[rows])) for p in RIG}
-        dev = np.abs(np.log(fit.values["ramp"].to_numpy()[rows] / median["ramp"]))
-        limit = max(RIG_OUTLIER_MIN, RIG_OUTLIER_SDS * 1.4826 * float(np.median(dev)))
-        for i, off in zip(rows, dev > limit, strict=True):
+        log_ramp = np.log(fit.values["ramp"].to_numpy()[rows])
+        limit = max(RIG_OUTLIER_MIN,
+                    RIG_OUTLIER_SDS * median_abs_deviation(log_ramp, scale="normal"))
+        for i, off in zip(rows, np.abs(log_ramp - np.log(median["ramp"])) > limit, strict=True):
             if off:
                 starts[i] = median
     return starts
