@@ -475,11 +475,10 @@ def _rig_outliers_refitted(items: Sequence[MeasurementData], timed: list[Measure
     if not starts:
         return timed, fit
     rows = np.array(sorted(starts))
-    sub = [items[i] for i in rows]
-    u0 = np.stack([to_unconstrained(base, d.guess | starts[i]) for i, d in zip(rows, sub,
-                                                                                strict=True)])
-    sub_timed, refit = _base_fit(sub, base, _broadcast(fix, len(items), rows)["fix"], u0,
-                                 "recording", timing, kw,
+    # from the data's guess (u0 None), the held profile overriding its rig
+    sub_timed, refit = _base_fit([items[i] for i in rows], base,
+                                 _broadcast(fix, len(items), rows)["fix"], None, "recording",
+                                 timing, kw,
                                  first_fix={p: np.array([starts[i][p] for i in rows]) for p in RIG})
     better = np.less(refit.bic, fit.bic[rows])  # False where either is NaN
     chosen = np.zeros(len(items), dtype=np.int64)
