@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
+from scipy.stats import median_abs_deviation
 
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Channel, Recording, kept_per_recording
@@ -149,7 +150,7 @@ def suspect_samples(grid: np.ndarray, *, stuck_min: int = STUCK_MIN
             good = ok[:, j] & ~spike[:, j]
             smooth = np.interp(idx, idx[good], x[good, j])  # spikes found so far bridged
             resid = np.where(ok[:, j], x[:, j], smooth) - median_filter(smooth, 7, mode="nearest")
-            spread = 1.4826 * np.median(np.abs(resid - np.median(resid)))
+            spread = median_abs_deviation(resid, scale="normal")
             # a sharp static peak is no spike: compare with the local sample-to-sample change
             slope = median_filter(np.abs(np.diff(smooth, prepend=smooth[0])), 7, mode="nearest")
             new = ok[:, j] & (np.abs(resid) > np.maximum(max(12 * spread, 0.05), 4 * slope))
@@ -295,7 +296,9 @@ def _stops(s: np.ndarray, ok: np.ndarray, rate: float, starts: list[float | None
     signs = [None if a is None else
              float(np.sign(s[min(int(a) + int(0.05 * rate), s.size - 1)] - s[int(a)]))
              for a in starts]
-    noise = 1.4826 * float(np.median(np.abs(s - moving_average(s, 15))))
+    # robust sd of the departures from the local mean (about zero, not their median)
+    noise = float(median_abs_deviation(s - moving_average(s, 15), center=lambda x, axis: 0.0,
+                                       scale="normal"))
     stops = [None if a is None else _refine_stop(s, ok, rate, a, g, (0.03, 0.25), noise)
              for a, g in zip(starts, signs, strict=True)]
     durations = [(b - a) / rate for a, b in zip(starts, stops, strict=True)
