@@ -205,7 +205,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 24  # 24: a static peak weakens within a stroke (slip_length <= 1 mm)
+    _version = 25  # 25: no second start from the batch's session profile (rows its own)
     _view_params = ("with_stderr",)  # the stderrs are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
     #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the
@@ -354,8 +354,11 @@ class PhysicalFeatures(RecordingFeatures):
         out: list[dict[str, np.ndarray]] = [{} for _ in recordings]
         if not items:
             return out
+        # no second start from the session's profile of the batch: with rig="recording" a
+        # recording's row depends on it alone (and is cached by its content)
         res = fit_measurements(items, model=self.model, rig=self.rig, max_steps=self.max_steps,
                                fix=None if self.wear else {"wear": 0.0},
+                               refit_rig_outliers=False,
                                progress=False)  # the feature set's own bar counts the batches
         ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
         if self.accept_max_steps:
