@@ -25,7 +25,10 @@ def fit(
     model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
     rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
-                            "fitted for each recording and channel), session (the "
+                            "fitted for each recording and channel; a fit whose movement "
+                            "duration stands out of the others of its session and channel "
+                            "in the batch, five or more, is fitted again from their median "
+                            "profile, the better BIC kept), session (the "
                             "movement's duration and acceleration held at the median of each "
                             "session's fits, then fitted again: one motor profile all day, "
                             "the spread of the session's profiles carried into the stderrs; "
