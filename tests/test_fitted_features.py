@@ -122,3 +122,21 @@ def test_a_recordings_fitted_features_do_not_depend_on_what_is_featurised_with_i
     alone = FittedFeatures(cache=False).fit_transform(recs[1:2])
     assert np.isfinite(alone).all()
     np.testing.assert_allclose(alone[0], together[1], rtol=1e-6, atol=1e-9)
+
+
+def test_the_features_fits_take_no_second_start_from_their_batch(monkeypatch):
+    # a second start from the session's profile is computed over the batch (five or more
+    # fits of a session): the row of a recording would then depend on its batch-mates
+    import frictionfit.fit.measurement as measurement
+
+    seen = []
+    fit = measurement.fit_measurements
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("refit_rig_outliers", True))
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(measurement, "fit_measurements", spy)
+    recs = simulate_measurements([(1, "paper-2", 1)], seed=7)
+    FittedFeatures(cache=False).fit_transform(recs)
+    assert seen == [False]
