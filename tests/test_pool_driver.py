@@ -49,6 +49,18 @@ def _one_at_a_time(solver, y0, args, max_steps):
             np.array([int(s.stats["num_steps"]) for s in out]))
 
 
+def _same_status(name, status, steps, ref_status, ref_steps, max_steps) -> np.ndarray:
+    """Assert the pooled and the single runs end in the same status; which problems may
+    differ (returned): dogleg's trust-region decisions flip on rounding, so a problem
+    that ends at the step cap in either run may have converged on its last step in the
+    other."""
+    edge = ((steps == max_steps) | (ref_steps == max_steps) if name == "dogleg"
+            else np.zeros(len(steps), bool))
+    np.testing.assert_array_equal(status[~edge], ref_status[~edge])
+    assert set(status[edge]) | set(ref_status[edge]) <= {Status.CONVERGED, Status.MAX_STEPS}
+    return edge
+
+
 @pytest.mark.parametrize("name", SOLVERS)
 def test_pooled_with_refills_equals_one_problem_at_a_time(name):
     y0, args = _problems()
@@ -60,12 +72,8 @@ def test_pooled_with_refills_equals_one_problem_at_a_time(name):
     # the same iterations, batched: the same status, step counts and optimum. Dogleg's
     # trust-region decisions near the end flip on rounding (batched and single kernels
     # differ): its step counts differ for one or two problems (e.g. 30 / 18 against 22 /
-    # 25), the optimum not, and one that ends at the step cap in either run may have
-    # converged on its last step in the other
-    edge = ((steps == 60) | (ref_steps == 60) if name == "dogleg"
-            else np.zeros(len(steps), bool))
-    np.testing.assert_array_equal(status[~edge], ref_status[~edge])
-    assert set(status[edge]) | set(ref_status[edge]) <= {Status.CONVERGED, Status.MAX_STEPS}
+    # 25), the optimum not
+    edge = _same_status(name, status, steps, ref_status, ref_steps, 60)
     if name != "dogleg":
         np.testing.assert_array_equal(steps, ref_steps)
     np.testing.assert_allclose(value[~edge], ref_value[~edge], rtol=1e-6, atol=0)
@@ -85,12 +93,7 @@ def test_failures_end_in_a_status_never_a_crash_or_nan(name):
     assert np.all(np.isfinite(value))
     assert (status == Status.MAX_STEPS).sum() >= 1 and steps.max() == max_steps
     _, ref_status, ref_steps = _one_at_a_time(SOLVERS[name], y0, (x, y), max_steps)
-    # dogleg's trust-region decisions flip on rounding (see above): a problem that ends at
-    # the step cap in either run may have converged on its last step in the other
-    edge = ((steps == max_steps) | (ref_steps == max_steps) if name == "dogleg"
-            else np.zeros(len(steps), bool))
-    np.testing.assert_array_equal(status[~edge], ref_status[~edge])
-    assert set(status[edge]) | set(ref_status[edge]) <= {Status.CONVERGED, Status.MAX_STEPS}
+    _same_status(name, status, steps, ref_status, ref_steps, max_steps)
 
 
 def test_fit_trials_runs_optimistix_solvers_on_hard_cases():
