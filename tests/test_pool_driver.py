@@ -14,6 +14,7 @@ from helpers import hard_cases, known_truth
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import BatchedLevenbergMarquardt, fit_trials
 from frictionfit.fit._optx import RESULT_STATUS, solve_pooled
+from frictionfit.models.measurement import HOST_LOOP_COMPILER_OPTIONS
 
 SOLVERS = {"optx-lm": optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10),
            "dogleg": optx.Dogleg(rtol=1e-10, atol=1e-10),
@@ -123,3 +124,18 @@ def test_threads_do_not_change_results():
     two = solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60, threads=2)
     for a, b in zip(one, two, strict=True):  # two pools of 3 slots, a thread each
         np.testing.assert_array_equal(a, b)
+
+
+def test_compiler_options_reach_xla():
+    """The host loop's options compile the pool's calls (same optimum, rounding aside); an
+    option XLA does not know is refused, so the options are not silently dropped."""
+    y0, args = _problems(5, seed=2)
+    solver = SOLVERS["lm"]
+    plain = solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60)
+    host = solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60,
+                        compiler_options=HOST_LOOP_COMPILER_OPTIONS)
+    np.testing.assert_array_equal(host[1], plain[1])
+    np.testing.assert_allclose(host[0], plain[0], rtol=1e-8)
+    with pytest.raises(Exception, match="no_such_xla_option"):
+        solve_pooled(solver, _saturation, y0, args, pool_size=3, max_steps=60,
+                     compiler_options={"no_such_xla_option": 1})

@@ -20,7 +20,7 @@ solvers that take the option. A finished slot's outcome becomes a
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import NamedTuple
@@ -78,11 +78,13 @@ def _where_slots(keep, old, new):
 
 
 @lru_cache(maxsize=32)
-def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: str):
+def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: str,
+                compiler_options: tuple[tuple[str, object], ...]):
     """Jitted ``start(arrays, live, y0, args) -> slots`` and ``run(arrays, slots, fresh,
     live, y0, args) -> (slots, code, value, stats)``: re-``init`` the ``fresh`` slots
     (``live``: holding a problem), then up to ``segment`` steps. ``arrays`` is the
-    array part of the solver, ``static_solver`` the rest (the cache key)."""
+    array part of the solver, ``static_solver`` the rest (the cache key);
+    ``compiler_options``: XLA's, as ``(name, value)`` pairs."""
     options, tags = {"jac": jac}, frozenset()
 
     def fn_aux(y, args):
@@ -137,14 +139,16 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
             slots, eqx.combine(slots.state, static), args)
         return slots, code, value, stats
 
-    return (jax.jit(lambda arrays, *a: start(eqx.combine(arrays, static_solver), *a)[0]),
-            jax.jit(run))
+    xla = dict(compiler_options) or None
+    return (jax.jit(lambda arrays, *a: start(eqx.combine(arrays, static_solver), *a)[0],
+                    compiler_options=xla),
+            jax.jit(run, compiler_options=xla))
 
 
 def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.ndarray, args,
                  *, pool_size: int, max_steps: int, segment: int = 4, threads: int = 1,
                  jac: str = "fwd", progress: Callable[[int], object] | None = None,
-                 solver_stats: bool = False):
+                 solver_stats: bool = False, compiler_options: Mapping[str, object] | None = None):
     """Solve every problem (rows of ``y0`` and of each ``args`` leaf) with ``solver``.
 
     ``fn(y, args) -> residuals`` for one problem. Returns ``(y, status, steps)`` as
@@ -155,12 +159,15 @@ def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.n
     :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`: no second Jacobian).
     ``pool_size`` slots; ``segment`` steps per compiled call; ``threads`` host
     threads, a pool each (:func:`in_threads`; the split does not change results);
-    ``progress(k)`` is called as ``k`` more problems finish.
+    ``progress(k)`` is called as ``k`` more problems finish. ``compiler_options``: XLA's
+    for the compiled calls (e.g. :data:`~frictionfit.models.measurement.HOST_LOOP_COMPILER_OPTIONS`
+    where ``fn``'s work is a host callback).
     """
     if not isinstance(solver, optx.AbstractLeastSquaresSolver):
         raise FitError(f"{type(solver).__name__} is not an optimistix least-squares solver")
     arrays, static = eqx.partition(solver, eqx.is_array)
-    fns = _segment_fn(static, fn, segment, max_steps, jac)
+    fns = _segment_fn(static, fn, segment, max_steps, jac,
+                      tuple(sorted((compiler_options or {}).items())))
     out = in_threads(lambda share, device: _solve_serial(
         fns, arrays, y0[share], jax.tree_util.tree_map(lambda a: a[share], args), pool_size, device,
         progress), y0.shape[0], pool_size, threads)

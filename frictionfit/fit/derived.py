@@ -41,6 +41,7 @@ import numpy as np
 
 from frictionfit.fit._numerics import map_chunks
 from frictionfit.models import MeasurementModel
+from frictionfit.models.measurement import jit_host_loop
 from frictionfit.segmentation import moving_average
 
 __all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities",
@@ -87,7 +88,7 @@ def _levels_fn(model: MeasurementModel):
         grad, value = jax.jacfwd(lambda v: (levels(v, direction),) * 2, has_aux=True)(u)
         return value, grad
 
-    return jax.jit(jax.vmap(value_and_grad))
+    return jit_host_loop(jax.vmap(value_and_grad))
 
 
 def _band_rms(x: np.ndarray) -> float:

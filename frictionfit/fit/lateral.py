@@ -25,7 +25,6 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -33,6 +32,7 @@ from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit.derived import slip_noise
 from frictionfit.fit.measurement import MeasurementData
 from frictionfit.models import MeasurementModel
+from frictionfit.models.measurement import jit_host_loop
 
 __all__ = ["LATERAL", "LATERAL_UNITS", "fit_lateral"]
 
@@ -56,7 +56,7 @@ def _regressors_fn(model: MeasurementModel):
         travel, _ = model.finger(u, t, commands, signs, stretch)
         return force, travel
 
-    return jax.jit(regressors)
+    return jit_host_loop(regressors)
 
 
 def fit_lateral(model: MeasurementModel, u: np.ndarray, drive: tuple, direction: float,

@@ -48,7 +48,12 @@ from frictionfit.fit.session import (
 )
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
-from frictionfit.models.measurement import RIG, to_unconstrained
+from frictionfit.models.measurement import (
+    HOST_LOOP_COMPILER_OPTIONS,
+    RIG,
+    jit_host_loop,
+    to_unconstrained,
+)
 from frictionfit.models.stick_slip import maxwell_branches
 from frictionfit.recording import Recording
 from frictionfit.segmentation import checked_grid, moving_average
@@ -741,7 +746,7 @@ def _window_costs_fn(model: MeasurementModel):
 
         return jax.vmap(one)(jnp.asarray(SHIFTS_S))
 
-    return jax.jit(costs)
+    return jit_host_loop(costs)
 
 
 def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
@@ -847,7 +852,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
         u_free, code, steps, stats = solve_pooled(
             solver, residual, start[:, free], jax.tree_util.tree_map(lambda a: a[rows], data),
             pool_size=pool_size, max_steps=max_steps, threads=1,
-            progress=None if bar is None else bar.update, solver_stats=True)
+            progress=None if bar is None else bar.update, solver_stats=True,
+            compiler_options=HOST_LOOP_COMPILER_OPTIONS)
         u = start.copy()
         u[:, free] = u_free
         u, relabelled = (_faster_branch_first(model, u) if branches
@@ -910,7 +916,7 @@ def _cost_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(points, data) -> sum of squared residuals`` (priors included) at each of
     ``points`` (m, p_free) of one item."""
     residual = residual_fn(model, free)
-    return jax.jit(lambda points, data: jax.vmap(
+    return jit_host_loop(lambda points, data: jax.vmap(
         lambda w: jnp.sum(residual(w, data) ** 2))(points))
 
 
@@ -1039,14 +1045,14 @@ def _faster_branch_first(model: MeasurementModel, u: np.ndarray
 def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data) -> J^T J`` (with the prior rows) of one item."""
     normal = normal_fn(model, free)
-    return jax.jit(lambda u_free, data: normal(u_free, data)[1])
+    return jit_host_loop(lambda u_free, data: normal(u_free, data)[1])
 
 
 @lru_cache(maxsize=16)
 def _residuals_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted, vmapped ``(u_free, data) -> data residuals`` of a chunk of items."""
     residual = residual_fn(model, free)
-    return jax.jit(jax.vmap(lambda w, data: residual(w, data)[: data[0].shape[-1]]))
+    return jit_host_loop(jax.vmap(lambda w, data: residual(w, data)[: data[0].shape[-1]]))
 
 
 #: Items per call where the residuals at the solutions are evaluated.

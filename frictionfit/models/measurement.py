@@ -43,7 +43,22 @@ from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force
 
-__all__ = ["LAWS", "RIG", "MeasurementModel", "to_unconstrained", "trapezoid"]
+__all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "RIG", "MeasurementModel", "jit_host_loop",
+           "to_unconstrained", "trapezoid"]
+
+#: XLA's options for a program whose work is this module's host callbacks (the compiled
+#: loop): LLVM's optimisation off. Such a program is the loop's calls and a little
+#: algebra around them (the solver's step), so it runs as fast and compiles in about half
+#: the time (docs/decisions.md, "Host-loop programs compiled without LLVM's optimisation").
+#: JAX never keeps a program with host callbacks in its persistent cache, so every
+#: process pays that compilation.
+HOST_LOOP_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
+
+
+def jit_host_loop(fn):
+    """``jax.jit`` of ``fn``, a program whose work is the compiled loop's host callbacks
+    (:data:`HOST_LOOP_COMPILER_OPTIONS`)."""
+    return jax.jit(fn, compiler_options=HOST_LOOP_COMPILER_OPTIONS)
 
 #: Default priors of the measurement model beyond the parameters' own: the slip-weakening
 #: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with

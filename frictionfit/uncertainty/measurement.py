@@ -50,6 +50,7 @@ from frictionfit.fit.measurement import (
     stack_items,
 )
 from frictionfit.models import MeasurementModel
+from frictionfit.models.measurement import jit_host_loop
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import log_logistic
 from frictionfit.uncertainty.engine import (
@@ -271,7 +272,7 @@ def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
         hess = jtj / s2 + jnp.diag(jnp.where(bounded, 2.0 * sig * (1.0 - sig), 0.0))
         return lp, grad, hess
 
-    return jax.jit(one)
+    return jit_host_loop(one)
 
 
 def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
