@@ -14,12 +14,13 @@ are scored by what a measurement of the material must do without one:
   median fitted ``k`` against the measured onset rate and the fitted ``f_kin`` against the
   measured held level (:func:`~frictionfit.features.physical.measured_phase`; Spearman).
 
-Speed: the whole fits of every channel after a compiling fit of a few, timed apart.
+Speed: the whole fits of every channel, fitted twice in one process; the second is timed
+(every program the fits take is compiled by then: JAX keeps none of the whole fits'
+programs between processes, and a few recordings do not take every path).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from itertools import combinations
 from pathlib import Path
@@ -40,8 +41,6 @@ __all__ = ["DETERMINED", "FITS", "run"]
 DETERMINED = ("k", "f_kin")
 #: The spread over motions the goal allows (sd / median).
 SPREAD_GOAL = 0.05
-#: Channels fitted to compile the fits, timed apart.
-_WARM_UP = 16
 #: The fits scored, by name: the default law choice per channel, the same with the motor's
 #: profile held at each session's median (``rig="session"``), and the fitted features' fit
 #: (one law, the kinetic level's ``wear`` held at 0).
@@ -80,13 +79,11 @@ def run(path: str | Path, *, quick: bool = False, seed: int = 0,
 
 def _score(items, recordings, channels: Sequence[str], fit_kw: dict,
            measured: pd.DataFrame) -> dict:
-    """Fit ``items`` by ``fit_measurements(**fit_kw)`` (after a compiling fit of a few, timed
-    apart) and score the fits (module notes)."""
-    start = time.perf_counter()
-    fit_measurements(items[:: max(len(items) // _WARM_UP, 1)][:_WARM_UP], **fit_kw,
-                     progress=False)
-    compile_s = time.perf_counter() - start
+    """Fit ``items`` by ``fit_measurements(**fit_kw)`` twice, the second timed, and score the
+    fits (module notes); ``compile_s``: how much longer the first took."""
+    first = fit_measurements(items, **fit_kw, progress=False)
     fit = fit_measurements(items, **fit_kw)
+    compile_s = max(first.wall_s - fit.wall_s, 0.0)
     motions, item_of, _ = fit_motions(items, fit, progress=None)
     table = _per_item(recordings, channels, fit)
     converged = table["status"] == Status.CONVERGED

@@ -220,7 +220,7 @@ def _lab(heading: str, lab: Mapping) -> list[str]:
     """A lab section: fits, spread over motions, then each channel's agreement and ranks."""
     lines = [f"## {heading}", "",
              f"{lab['channels']} channels in {lab['fit_s']:.3g} s after compilation "
-             f"({lab['compile_s']:.3g} s); laws "
+             f"(the first, compiling, {lab['compile_s']:.3g} s longer); laws "
              + ", ".join(f"{law} {n}" for law, n in lab["laws"].items())
              + f"; converged {lab['converged_rate']:.3g}, with "
              + " and ".join(lab["flagged_by_param"]) + " unflagged "
