@@ -24,7 +24,7 @@ speed turns the loading slope into ``k``, and the carried state is simulated.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from functools import lru_cache, partial
 
@@ -55,10 +55,11 @@ __all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "RIG", "MeasurementModel", "jit
 HOST_LOOP_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
-def jit_host_loop(fn):
+def jit_host_loop(fn: Callable) -> Callable:
     """``jax.jit`` of ``fn``, a program whose work is the compiled loop's host callbacks
     (:data:`HOST_LOOP_COMPILER_OPTIONS`)."""
     return jax.jit(fn, compiler_options=HOST_LOOP_COMPILER_OPTIONS)
+
 
 #: Default priors of the measurement model beyond the parameters' own: the slip-weakening
 #: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with
