@@ -40,37 +40,12 @@ def _ramp_weight(h):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _branch(w, dw, z, dz, zn, dzn, dt, tau, i_tau):
-    """One exact Maxwell step of ``w`` (and its tangents ``dw``, updated in place)."""
+def _maxwell(dt, tau):
+    """A Maxwell step's coefficients over ``dt``: ``exp(-h)``, ``g`` and their derivatives'
+    parts ``h / tau`` and ``dg/dh h / tau`` in ``tau`` (``h = dt / tau``)."""
     h = dt / tau
-    a = math.exp(-h)
     g, dg_dh = _ramp_weight(h)
-    for j in range(dw.size):
-        dw[j] = dzn[j] + a * (dw[j] - dz[j]) - (dzn[j] - dz[j]) * g
-    dw[i_tau] += a * h / tau * (w - z) + (zn - z) * dg_dh * h / tau
-    return zn + a * (w - z) - (zn - z) * g
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _limit(p, lanes, to_half, s, ds, dlim):
-    """The slider's limit (N), ``to_half`` mm of travel before the drive's halfway point and
-    after a slip ``s`` (mm) since the last reversal; its tangents written into ``dlim``."""
-    _, i_fk, i_fse, i_sl, _, _, _, _, _, i_wear = lanes
-    scale = math.exp(p[i_wear] * to_half) if i_wear >= 0 else 1.0
-    limit = p[i_fk] * scale
-    dlim[:] = 0.0
-    dlim[i_fk] = scale
-    if i_wear >= 0:
-        dlim[i_wear] = limit * to_half
-    if i_fse >= 0:
-        f_se, length = p[i_fse], p[i_sl]
-        decay = math.exp(-s / length)
-        limit += f_se * decay
-        for j in range(dlim.size):
-            dlim[j] -= f_se * decay / length * ds[j]
-        dlim[i_fse] += decay
-        dlim[i_sl] += f_se * decay * s / length**2
-    return limit
+    return math.exp(-h), g, h / tau, dg_dh * h / tau
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -89,19 +64,42 @@ def _constants(x, p, lanes):
     return p[i_k], rf, rf2, rf2 * (1.0 - rf), half
 
 
+#: The Maxwell steps' coefficients are reused while the sample interval stays within this
+#: relative change of the one they were computed for (a uniform grid's intervals differ in
+#: their last bits): the force changes by ~1e-12 relative.
+_SAME_INTERVAL = 1e-9
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _one(x, xdot, dt, p, lanes, force, jac):
-    """Force (n,) and Jacobian (n, m + r) of one simulation, written into the outputs."""
+    """Force (n,) and Jacobian (n, m + r) of one simulation, written into the outputs.
+
+    Each sample's scalar state first, then one pass over the tangents (lanes); the terms
+    only one lane receives (a parameter's own direct effect) are added around that pass.
+    Each exponential is computed only when its argument changes (the Maxwell steps' while
+    the interval holds, the slip's while the contact slips, the wear's while the finger
+    moves)."""
     n, r = xdot.shape
     m = p.size
     q = m + r
-    i_k, _, i_fse, _, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
+    i_k, i_fk, i_fse, i_sl, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
     k, rf, rf2, w2_frac, half = _constants(x, p, lanes)
+    f_se = p[i_fse] if i_fse >= 0 else 0.0
+    damping = p[i_damp] if i_damp >= 0 else 0.0
+    scale = math.exp(p[i_wear] * half) if i_wear >= 0 else 1.0
     z = s = w = w2 = travel = 0.0
-    direction = 1.0
+    decay, direction, interval = 1.0, 1.0, -1.0
+    a1 = g1 = h1 = dg1 = a2 = g2 = h2 = dg2 = 0.0
     dz, ds, dw, dw2 = np.zeros(q), np.zeros(q), np.zeros(q), np.zeros(q)
-    dzn, dlim, dstep = np.zeros(q), np.zeros(q), np.zeros(q)
+    dstep = np.zeros(q)
+    head = np.zeros(q)  # a sliding sample's limit's own terms (times side / k: dzn)
     for i in range(n):
+        if abs(dt[i] - interval) > _SAME_INTERVAL * interval:
+            interval = dt[i]
+            if i_rf >= 0:
+                a1, g1, h1, dg1 = _maxwell(interval, p[i_tau])
+            if i_rf2 >= 0:
+                a2, g2, h2, dg2 = _maxwell(interval, p[i_tau2])
         step = x[i] - x[i - 1] if i > 0 else 0.0
         for c in range(r):  # the drive's tangents of this step
             dstep[m + c] = xdot[i, c] - xdot[i - 1, c] if i > 0 else 0.0
@@ -110,69 +108,77 @@ def _one(x, xdot, dt, p, lanes, force, jac):
         travel += abs(step)
         if moving and new_dir != direction:  # reversal: stuck again
             s = 0.0
+            decay = 1.0
             ds[:] = 0.0
-        limit = _limit(p, lanes, half - travel, s, ds, dlim)
+        if moving and i_wear >= 0:
+            scale = math.exp(p[i_wear] * (half - travel))
+        limit = p[i_fk] * scale + f_se * decay
         direction = new_dir
         z_max = limit / k
         z_trial = z + step
-        if z_trial > z_max or z_trial < -z_max:
-            side = 1.0 if z_trial > z_max else -1.0
-            zn = side * z_max
-            for j in range(q):
-                dzn[j] = side * dlim[j] / k
-            dzn[i_k] -= side * limit / k**2
-        else:
-            zn = z_trial
-            for j in range(q):
-                dzn[j] = dz[j] + dstep[j]
-        if i_fse >= 0:
-            gap = z_trial - zn
-            if gap != 0.0:
-                sign = 1.0 if gap > 0.0 else -1.0
-                for j in range(q):
-                    ds[j] += sign * (dz[j] + dstep[j] - dzn[j])
-            s += abs(gap)
-        elastic = zn
+        slide = z_trial > z_max or z_trial < -z_max
+        side = (1.0 if z_trial > z_max else -1.0) if slide else 0.0
+        zn = side * z_max if slide else z_trial
+        w_new = zn + a1 * (w - z) - (zn - z) * g1
+        w2_new = zn + a2 * (w2 - z) - (zn - z) * g2
+        elastic = zn - rf * w_new - w2_frac * w2_new
+        rate = damping / dt[i]
         out = jac[i]
-        out[:] = dzn
+        if slide:
+            # the limit's tangents: each parameter's own term, and the slip's through ds
+            head[i_k] = -limit / k
+            head[i_fk] = scale
+            if i_wear >= 0:
+                head[i_wear] = p[i_fk] * scale * (half - travel)
+            slip = 0.0
+            if i_fse >= 0:
+                length = p[i_sl]
+                head[i_fse] = decay
+                head[i_sl] = f_se * decay * s / length**2
+                slip = f_se * decay / length
+            gain = side / k
+            for j in range(q):
+                dzn = gain * (head[j] - slip * ds[j])
+                ds[j] += side * (dz[j] + dstep[j] - dzn)
+                dw[j] = dzn + a1 * (dw[j] - dz[j]) - (dzn - dz[j]) * g1
+                dw2[j] = dzn + a2 * (dw2[j] - dz[j]) - (dzn - dz[j]) * g2
+                out[j] = k * (dzn - rf * dw[j] - w2_frac * dw2[j]) + rate * (dzn - dz[j])
+                dz[j] = dzn
+            if i_fse >= 0:
+                s += abs(z_trial - zn)
+                decay = math.exp(-s / p[i_sl])
+        else:
+            for j in range(q):
+                dzn = dz[j] + dstep[j]
+                dw[j] = dzn + a1 * (dw[j] - dz[j]) - (dzn - dz[j]) * g1
+                dw2[j] = dzn + a2 * (dw2[j] - dz[j]) - (dzn - dz[j]) * g2
+                out[j] = k * (dzn - rf * dw[j] - w2_frac * dw2[j]) + rate * (dzn - dz[j])
+                dz[j] = dzn
         if i_rf >= 0:
-            w = _branch(w, dw, z, dz, zn, dzn, dt[i], p[i_tau], i_tau)
-            elastic -= rf * w
-            for j in range(q):
-                out[j] -= rf * dw[j]
-            out[i_rf] -= w
+            extra = a1 * h1 * (w - z) + (zn - z) * dg1
+            dw[i_tau] += extra
+            out[i_tau] -= k * rf * extra
+            out[i_rf] -= k * w_new
+            w = w_new
         if i_rf2 >= 0:
-            w2 = _branch(w2, dw2, z, dz, zn, dzn, dt[i], p[i_tau2], i_tau2)
-            elastic -= w2_frac * w2
-            for j in range(q):
-                out[j] -= w2_frac * dw2[j]
-            out[i_rf2] -= (1.0 - rf) * w2
-            out[i_rf] += rf2 * w2
+            extra = a2 * h2 * (w2 - z) + (zn - z) * dg2
+            dw2[i_tau2] += extra
+            out[i_tau2] -= k * w2_frac * extra
+            out[i_rf2] -= k * (1.0 - rf) * w2_new
+            out[i_rf] += k * rf2 * w2_new
+            w2 = w2_new
         force[i] = k * elastic
-        for j in range(q):
-            out[j] *= k
         out[i_k] += elastic
         if i_damp >= 0:
-            force[i] += p[i_damp] * (zn - z) / dt[i]
-            for j in range(q):
-                out[j] += p[i_damp] * (dzn[j] - dz[j]) / dt[i]
+            force[i] += rate * (zn - z)
             out[i_damp] += (zn - z) / dt[i]
         z = zn
-        dz[:] = dzn
-
-
-#: The Maxwell steps' coefficients are reused while the sample interval stays within this
-#: relative change of the one they were computed for (a uniform grid's intervals differ in
-#: their last bits): the force changes by ~1e-12 relative.
-_SAME_INTERVAL = 1e-9
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _contact(x, dt, p, lanes, force):
     """The force (n,) of :func:`_one` without its tangents (written into ``force``): its
-    twin, same steps (change both), each exponential computed only when its argument
-    changes (the Maxwell steps' while the interval holds, the slip's and the wear's while
-    the finger moves)."""
+    twin, same steps (change both)."""
     n = x.size
     _, i_fk, i_fse, i_sl, i_rf, i_tau, i_rf2, i_tau2, i_damp, i_wear = lanes
     k, rf, _, w2_frac, half = _constants(x, p, lanes)
@@ -184,9 +190,9 @@ def _contact(x, dt, p, lanes, force):
         if abs(dt[i] - interval) > _SAME_INTERVAL * interval:
             interval = dt[i]
             if i_rf >= 0:
-                a1, g1 = math.exp(-interval / p[i_tau]), _ramp_weight(interval / p[i_tau])[0]
+                a1, g1, _, _ = _maxwell(interval, p[i_tau])
             if i_rf2 >= 0:
-                a2, g2 = math.exp(-interval / p[i_tau2]), _ramp_weight(interval / p[i_tau2])[0]
+                a2, g2, _, _ = _maxwell(interval, p[i_tau2])
         step = x[i] - x[i - 1] if i > 0 else 0.0
         moving = step != 0.0
         new_dir = (1.0 if step > 0.0 else -1.0) if moving else direction
@@ -346,28 +352,29 @@ def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, valu
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _weighted_products(columns, value, y, weight, ctc, ctr):
+    """``|r|^2 / 2`` of the weighted residual ``r = weight (value - y)``; ``C^T C`` and
+    ``C^T r`` of the weighted Jacobian ``C = weight columns`` written into ``ctc``, ``ctr``
+    (BLAS products; ``columns`` (n, q) is overwritten by ``C``)."""
+    res = np.empty(value.size)
+    for i in range(value.size):
+        res[i] = weight[i] * (value[i] - y[i])
+        for j in range(columns.shape[1]):
+            columns[i, j] *= weight[i]
+    ctc[:] = columns.T @ columns
+    ctr[:] = columns.T @ res
+    return 0.5 * (res @ res)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _batch_normal(theta, t, commands, signs, stretch, direction, y, weight, stroke, lanes, r,
                   cost, ctc, ctr):
     n, p = t.shape[1], theta.shape[1]
-    value, columns, wc = np.empty(n), np.empty((n, p)), np.empty(p)
+    value, columns = np.empty(n), np.empty((n, p))
     for b in range(t.shape[0]):
         _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke, lanes,
                  r, value, columns)
-        acc, grad = ctc[b], ctr[b]
-        acc[:] = 0.0
-        grad[:] = 0.0
-        total = 0.0
-        for i in range(n):
-            w = weight[b, i]
-            res = w * (value[i] - y[b, i])
-            total += res * res
-            for j in range(p):
-                wc[j] = w * columns[i, j]
-            for j in range(p):
-                grad[j] += wc[j] * res
-                for k in range(p):
-                    acc[j, k] += wc[j] * wc[k]
-        cost[b] = 0.5 * total
+        cost[b] = _weighted_products(columns, value, y[b], weight[b], ctc[b], ctr[b])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -393,22 +400,10 @@ def _timing_normal(theta, t, commands, signs, stretch, direction, y, weight, str
     dt = _intervals(t)
     force, jac = np.empty(n), np.empty((n, m + 2 * c))
     _one(x, xdot, dt, theta[3:3 + m], lanes, force, jac)
-    value, col = np.empty(n), np.empty(2 * c)
+    value = np.empty(n)
     _readings(theta, t, x, speed, force, direction, value)
-    ctc[:] = 0.0
-    ctr[:] = 0.0
-    total = 0.0
-    for i in range(n):
-        w = weight[i]
-        res = w * (value[i] - y[i])
-        total += res * res
-        for j in range(2 * c):
-            col[j] = w * (leak * xdot[i, j] + direction * (jac[i, m + j] + drag * sdot[i, j]))
-        for j in range(2 * c):
-            ctr[j] += col[j] * res
-            for k in range(2 * c):
-                ctc[j, k] += col[j] * col[k]
-    return 0.5 * total
+    columns = leak * xdot + direction * (jac[:, m:] + drag * sdot)
+    return _weighted_products(columns, value, y, weight, ctc, ctr)
 
 
 def timing_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
