@@ -351,19 +351,32 @@ def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, valu
                  r, value[b], columns[b])
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _dot(a, b):
+    """``a . b`` of two contiguous vectors, summed in vector lanes."""
+    total = 0.0
+    for i in range(a.size):
+        total += a[i] * b[i]
+    return total
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _weighted_products(columns, value, y, weight, ctc, ctr):
     """``|r|^2 / 2`` of the weighted residual ``r = weight (value - y)``; ``C^T C`` and
-    ``C^T r`` of the weighted Jacobian ``C = weight columns`` written into ``ctc``, ``ctr``
-    (BLAS products; ``columns`` (n, q) is overwritten by ``C``)."""
-    res = np.empty(value.size)
-    for i in range(value.size):
+    ``C^T r`` of the weighted Jacobian ``C = weight columns`` (n, q) written into ``ctc``,
+    ``ctr``: dot products of ``C``'s columns laid out contiguously (no BLAS, whose threads
+    would compete with the loop's on calls this small)."""
+    n, q = columns.shape
+    res, wc = np.empty(n), np.empty((q, n))
+    for i in range(n):
         res[i] = weight[i] * (value[i] - y[i])
-        for j in range(columns.shape[1]):
-            columns[i, j] *= weight[i]
-    ctc[:] = columns.T @ columns
-    ctr[:] = columns.T @ res
-    return 0.5 * (res @ res)
+        for j in range(q):
+            wc[j, i] = weight[i] * columns[i, j]
+    for j in range(q):
+        ctr[j] = _dot(wc[j], res)
+        for k in range(j, q):
+            ctc[j, k] = ctc[k, j] = _dot(wc[j], wc[k])
+    return 0.5 * _dot(res, res)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
