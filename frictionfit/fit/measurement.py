@@ -733,20 +733,18 @@ TIMING_STEP_MAX = (0.002, 0.05)
 TIMING_FTOL = 1e-6
 
 
-@lru_cache(maxsize=8)
-def _window_costs_fn(model: MeasurementModel):
-    """Jitted: the weighted residual sum of squares in each command's fine window, for every
-    common shift of the commands in ``SHIFTS_S``: ``(n_shifts, n_commands)``."""
-    def costs(u, y, weight, t, commands, signs, direction):
-        def one(shift):
-            pred = model.predict(u, t, commands + shift, signs, direction)
-            r2 = (weight * (pred - y)) ** 2
-            inside = (t[:, None] >= commands[None, :]) & (t[:, None] < commands[None, :] + FINE_S)
-            return r2 @ inside.astype(r2.dtype)
-
-        return jax.vmap(one)(jnp.asarray(SHIFTS_S))
-
-    return jit_host_loop(costs)
+def _window_costs(model: MeasurementModel, u: np.ndarray, d: MeasurementData) -> np.ndarray:
+    """The weighted residual sum of squares in each command's fine window at ``u``, for every
+    common shift of the commands in ``SHIFTS_S``: ``(n_shifts, n_commands)`` (NumPy, by the
+    compiled loop)."""
+    k, shape = SHIFTS_S.size, (SHIFTS_S.size, d.commands.size)
+    value = model.channel(np.broadcast_to(u, (k, u.size)), np.broadcast_to(d.t, (k, d.t.size)),
+                          d.commands + SHIFTS_S[:, None],
+                          np.broadcast_to(d.signs, shape), np.ones(shape), np.full(k, d.direction))
+    total = np.zeros((k, d.t.size + 1))
+    np.cumsum((d.weight * (value - d.y)) ** 2, axis=1, out=total[:, 1:])
+    edges = np.searchsorted(d.t, np.stack([d.commands, d.commands + FINE_S]))
+    return total[:, edges[1]] - total[:, edges[0]]
 
 
 def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
@@ -756,9 +754,8 @@ def _movement_timing(model: MeasurementModel, u: np.ndarray, d: MeasurementData
     Levenberg-Marquardt steps in every movement's onset and log duration together; both
     relative to their median over the fitted movements (``delay`` and ``ramp`` keep the
     typical movement)."""
-    u = jnp.asarray(u)
-    cost = np.asarray(_window_costs_fn(model)(u, d.y, d.weight, d.t, d.commands, d.signs,
-                                              d.direction))
+    u = np.asarray(u, dtype=np.float64)
+    cost = _window_costs(model, u, d)
     seen = cost.max(axis=0) > 0  # a window with no fitted block keeps its command
     commands = d.commands + np.where(seen, SHIFTS_S[np.argmin(cost, axis=0)], 0.0)
     stretch = np.ones_like(commands)

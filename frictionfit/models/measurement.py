@@ -181,14 +181,20 @@ class MeasurementModel(eqx.Module, NamedParameters):
         xp = np if isinstance(u, np.ndarray) else jnp
         return xp.stack([v[n] for n in self.param_names], axis=-1)
 
+    def channel(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray, signs: np.ndarray,
+                stretch: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """:meth:`predict` (N) at unconstrained ``u (..., p)`` for a batch, NumPy in and out,
+        by the compiled loop (no JAX)."""
+        theta = self._theta(np.asarray(u, dtype=np.float64))
+        return channel_values(theta, t, commands, signs, stretch, direction,
+                              names=self.law_names, stroke_mm=self.stroke_mm)
+
     def weighted_cost(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
                       signs: np.ndarray, stretch: np.ndarray, direction: np.ndarray,
                       y: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """``|weight (predict - y)|^2 / 2`` (N^2) at unconstrained ``u (..., p)`` for a batch
         (NumPy in and out, by the compiled loop, no JAX: a sampler's density)."""
-        theta = self._theta(np.asarray(u, dtype=np.float64))
-        value = channel_values(theta, t, commands, signs, stretch, direction,
-                               names=self.law_names, stroke_mm=self.stroke_mm)
+        value = self.channel(u, t, commands, signs, stretch, direction)
         return 0.5 * np.sum((weight * (value - y)) ** 2, axis=-1)
 
     def predict(self, u, t, commands, signs, direction, held: tuple[str, ...] = (),
