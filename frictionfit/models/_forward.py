@@ -49,6 +49,16 @@ def _maxwell(dt, tau):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _branches(dt, p, lanes):
+    """Both Maxwell branches' :func:`_maxwell` coefficients over ``dt`` (zeros for a branch
+    the law lacks)."""
+    _, _, _, _, i_rf, i_tau, i_rf2, i_tau2, _, _ = lanes
+    none = (0.0, 0.0, 0.0, 0.0)
+    return (_maxwell(dt, p[i_tau]) if i_rf >= 0 else none,
+            _maxwell(dt, p[i_tau2]) if i_rf2 >= 0 else none)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _constants(x, p, lanes):
     """The law's stiffness ``k``, branch fractions ``rf``, ``rf2`` (0 where absent), the
     second branch's share ``rf2 (1 - rf)`` and half the finger's total travel (mm; 0
@@ -88,18 +98,14 @@ def _one(x, xdot, dt, p, lanes, force, jac):
     damping = p[i_damp] if i_damp >= 0 else 0.0
     scale = math.exp(p[i_wear] * half) if i_wear >= 0 else 1.0
     z = s = w = w2 = travel = 0.0
-    decay, direction, interval = 1.0, 1.0, -1.0
-    a1 = g1 = h1 = dg1 = a2 = g2 = h2 = dg2 = 0.0
+    decay, direction, interval = 1.0, 1.0, -1.0  # the first sample sets the coefficients
     dz, ds, dw, dw2 = np.zeros(q), np.zeros(q), np.zeros(q), np.zeros(q)
     dstep = np.zeros(q)
     head = np.zeros(q)  # a sliding sample's limit's own terms (times side / k: dzn)
     for i in range(n):
         if abs(dt[i] - interval) > _SAME_INTERVAL * interval:
             interval = dt[i]
-            if i_rf >= 0:
-                a1, g1, h1, dg1 = _maxwell(interval, p[i_tau])
-            if i_rf2 >= 0:
-                a2, g2, h2, dg2 = _maxwell(interval, p[i_tau2])
+            (a1, g1, h1, dg1), (a2, g2, h2, dg2) = _branches(interval, p, lanes)
         step = x[i] - x[i - 1] if i > 0 else 0.0
         for c in range(r):  # the drive's tangents of this step
             dstep[m + c] = xdot[i, c] - xdot[i - 1, c] if i > 0 else 0.0
@@ -184,15 +190,11 @@ def _contact(x, dt, p, lanes, force):
     k, rf, _, w2_frac, half = _constants(x, p, lanes)
     scale = math.exp(p[i_wear] * half) if i_wear >= 0 else 1.0
     z = s = w = w2 = travel = 0.0
-    decay, direction, interval = 1.0, 1.0, -1.0
-    a1 = g1 = a2 = g2 = 0.0
+    decay, direction, interval = 1.0, 1.0, -1.0  # the first sample sets the coefficients
     for i in range(n):
         if abs(dt[i] - interval) > _SAME_INTERVAL * interval:
             interval = dt[i]
-            if i_rf >= 0:
-                a1, g1, _, _ = _maxwell(interval, p[i_tau])
-            if i_rf2 >= 0:
-                a2, g2, _, _ = _maxwell(interval, p[i_tau2])
+            (a1, g1, _, _), (a2, g2, _, _) = _branches(interval, p, lanes)
         step = x[i] - x[i - 1] if i > 0 else 0.0
         moving = step != 0.0
         new_dir = (1.0 if step > 0.0 else -1.0) if moving else direction
