@@ -738,8 +738,7 @@ def _window_costs(model: MeasurementModel, u: np.ndarray, d: MeasurementData) ->
     common shift of the commands in ``SHIFTS_S``: ``(n_shifts, n_commands)`` (NumPy, by the
     compiled loop)."""
     k, shape = SHIFTS_S.size, (SHIFTS_S.size, d.commands.size)
-    value = model.channel(np.broadcast_to(u, (k, u.size)), np.broadcast_to(d.t, (k, d.t.size)),
-                          d.commands + SHIFTS_S[:, None],
+    value = model.channel(u, np.broadcast_to(d.t, (k, d.t.size)), d.commands + SHIFTS_S[:, None],
                           np.broadcast_to(d.signs, shape), np.ones(shape), np.full(k, d.direction))
     total = np.zeros((k, d.t.size + 1))
     np.cumsum((d.weight * (value - d.y)) ** 2, axis=1, out=total[:, 1:])

@@ -184,8 +184,9 @@ class MeasurementModel(eqx.Module, NamedParameters):
     def channel(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray, signs: np.ndarray,
                 stretch: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """:meth:`predict` (N) at unconstrained ``u (..., p)`` for a batch, NumPy in and out,
-        by the compiled loop (no JAX)."""
+        by the compiled loop (no JAX); ``u`` broadcast over ``t``'s leading axes."""
         theta = self._theta(np.asarray(u, dtype=np.float64))
+        theta = np.broadcast_to(theta, (*np.shape(t)[:-1], theta.shape[-1]))
         return channel_values(theta, t, commands, signs, stretch, direction,
                               names=self.law_names, stroke_mm=self.stroke_mm)
 
