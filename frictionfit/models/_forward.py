@@ -7,13 +7,13 @@ the same force and Jacobian (to ~1e-14 relative, tested against ``jax.jacfwd``) 
 faster. It covers what the whole-measurement fits differentiate: one channel of
 :class:`~frictionfit.models.MeasurementModel` (the rig's drive, the contact simulated from
 rest on a per-sample grid, the sensor), its Jacobian in every physical parameter. The loop
-releases the GIL; a batch's rows are shared by one host thread per core.
+releases the GIL; a batch's rows are shared by one thread per core (numba's ``prange``,
+:func:`threads`).
 """
 
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 
 import numba
@@ -333,24 +333,43 @@ def _channel(theta, t, commands, signs, stretch, direction, stroke, lanes, r, va
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes, value):
-    """Each row's channel (:func:`_channel`'s value, no Jacobian) written into ``value``."""
-    n, p = t.shape[1], theta.shape[1]
+def _part(rows, parts, i):
+    """Rows ``[lo, hi)`` of part ``i`` of ``parts`` nearly equal contiguous parts."""
+    return i * rows // parts, (i + 1) * rows // parts
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes, threads,
+                 value):
+    """Each row's channel (:func:`_channel`'s value, no Jacobian) written into ``value``;
+    the rows shared by ``threads`` threads."""
+    rows, n, p = t.shape[0], t.shape[1], theta.shape[1]
     m = p - 7
-    x, speed, force = np.empty(n), np.empty(n), np.empty(n)
-    dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
-    for b in range(t.shape[0]):
-        th, tb = theta[b], t[b]
-        _drive(th[p - 3:], tb, commands[b], signs[b], stretch[b], stroke, x, speed, dx, dspeed)
-        _contact(x, _intervals(tb), th[3:3 + m], lanes, force)
-        _readings(th, tb, x, speed, force, direction[b], value[b])
+    parts = max(1, min(rows, threads))
+    for part in numba.prange(parts):
+        x, speed, force = np.empty(n), np.empty(n), np.empty(n)
+        dx, dspeed = np.empty((n, 3)), np.empty((n, 3))
+        lo, hi = _part(rows, parts, part)
+        for b in range(lo, hi):
+            th, tb = theta[b], t[b]
+            _drive(th[p - 3:], tb, commands[b], signs[b], stretch[b], stroke, x, speed, dx,
+                   dspeed)
+            _contact(x, _intervals(tb), th[3:3 + m], lanes, force)
+            _readings(th, tb, x, speed, force, direction[b], value[b])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, value, columns):
-    for b in range(t.shape[0]):
-        _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke, lanes,
-                 r, value[b], columns[b])
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, threads, value,
+           columns):
+    """Each row's channel and Jacobian (:func:`_channel`); the rows shared by ``threads``
+    threads."""
+    rows = t.shape[0]
+    parts = max(1, min(rows, threads))
+    for part in numba.prange(parts):
+        lo, hi = _part(rows, parts, part)
+        for b in range(lo, hi):
+            _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke,
+                     lanes, r, value[b], columns[b])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
@@ -381,15 +400,20 @@ def _weighted_products(columns, value, y, weight, ctc, ctr):
     return 0.5 * _dot(res, res)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _batch_normal(theta, t, commands, signs, stretch, direction, y, weight, stroke, lanes, r,
-                  cost, ctc, ctr):
-    n, p = t.shape[1], theta.shape[1]
-    value, columns = np.empty(n), np.empty((n, p))
-    for b in range(t.shape[0]):
-        _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke, lanes,
-                 r, value, columns)
-        cost[b] = _weighted_products(columns, value, y[b], weight[b], ctc[b], ctr[b])
+                  threads, cost, ctc, ctr):
+    """Each row's :func:`_weighted_products` of its channel and Jacobian; the rows shared
+    by ``threads`` threads."""
+    rows, n, p = t.shape[0], t.shape[1], theta.shape[1]
+    parts = max(1, min(rows, threads))
+    for part in numba.prange(parts):
+        value, columns = np.empty(n), np.empty((n, p))
+        lo, hi = _part(rows, parts, part)
+        for b in range(lo, hi):
+            _channel(theta[b], t[b], commands[b], signs[b], stretch[b], direction[b], stroke,
+                     lanes, r, value, columns)
+            cost[b] = _weighted_products(columns, value, y[b], weight[b], ctc[b], ctr[b])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -438,19 +462,6 @@ def timing_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.ndarr
     return cost, ctc, ctr
 
 
-def _on_rows(kernel, inputs: list[np.ndarray], consts: tuple, outputs: list[np.ndarray]):
-    """``kernel(*inputs, *consts, *outputs)`` over a batch's rows (the leading axis of
-    every input and output), shared by one host thread per core, each writing its own."""
-    rows = inputs[0].shape[0]
-    parts = np.array_split(np.arange(rows), max(1, min(rows, available_cores())))
-    if len(parts) == 1:
-        kernel(*inputs, *consts, *outputs)
-        return
-    list(_threads().map(
-        lambda i: kernel(*(a[i] for a in inputs), *consts, *(o[i] for o in outputs)),
-        [slice(q[0], q[-1] + 1) for q in parts]))
-
-
 def _flat(arrays, lead: tuple[int, ...]) -> list[np.ndarray]:
     """Each array as float64 rows: its ``lead`` axes flattened into one."""
     rows = math.prod(lead)
@@ -467,7 +478,7 @@ def channel_values(theta: np.ndarray, t: np.ndarray, commands: np.ndarray, signs
     lead, n = t.shape[:-1], t.shape[-1]
     inputs = _flat((theta, t, commands, signs, stretch, direction), lead)
     value = np.empty((len(inputs[0]), n))
-    _on_rows(_batch_value, inputs, (stroke_mm, _lanes(tuple(names))), [value])
+    _batch_value(*inputs, stroke_mm, _lanes(tuple(names)), threads(), value)
     return value.reshape(*lead, n)
 
 
@@ -487,8 +498,8 @@ def channel_jacobian(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
     lead, (n, p) = t.shape[:-1], (t.shape[-1], theta.shape[-1])
     inputs = _flat((theta, t, commands, signs, stretch, direction), lead)
     value, columns = np.empty((len(inputs[0]), n)), np.empty((len(inputs[0]), n, p))
-    _on_rows(_batch, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
-             [value, columns])
+    _batch(*inputs, stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0, threads(), value,
+           columns)
     return value.reshape(*lead, n), columns.reshape(*lead, n, p)
 
 
@@ -506,8 +517,8 @@ def weighted_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.nda
     inputs = _flat((theta, t, commands, signs, stretch, direction, y, weight), lead)
     rows = len(inputs[0])
     cost, ctc, ctr = np.empty(rows), np.empty((rows, p, p)), np.empty((rows, p))
-    _on_rows(_batch_normal, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
-             [cost, ctc, ctr])
+    _batch_normal(*inputs, stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0, threads(),
+                  cost, ctc, ctr)
     return cost.reshape(lead), ctc.reshape(*lead, p, p), ctr.reshape(*lead, p)
 
 
@@ -517,6 +528,20 @@ def _lanes(names: tuple[str, ...]) -> np.ndarray:
     return np.array([names.index(nm) if nm in names else -1 for nm in LANES], np.int64)
 
 
+@numba.njit(cache=True, parallel=True)
+def _started(n):
+    """A loop over ``n`` that starts numba's threads (and so picks its threading layer)."""
+    total = 0
+    for i in numba.prange(n):
+        total += i
+    return total
+
+
 @cache
-def _threads() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(available_cores(), thread_name_prefix="frictionfit-contact")
+def threads() -> int:
+    """Threads the batch loops share a batch's rows over: one per core where numba's
+    threading layer lets several callers start loops at once (OpenMP, TBB: the loops are
+    called from JAX's and the user's threads alike), else 1 (its ``workqueue`` layer, which
+    must not be entered by two threads at once)."""
+    _started(1)
+    return available_cores() if numba.threading_layer() in ("omp", "tbb") else 1

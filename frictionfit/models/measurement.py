@@ -33,12 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models._forward import (
-    channel_jacobian,
-    channel_values,
-    timing_normal_equations,
-    weighted_normal_equations,
-)
+from frictionfit.models import _xla
+from frictionfit.models._forward import channel_values, timing_normal_equations
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force
@@ -220,15 +216,10 @@ class MeasurementModel(eqx.Module, NamedParameters):
         Jacobian passes through JAX (the whole fits' step). Not differentiable."""
         theta = self._theta(u)
         d_theta = jax.jacfwd(self._theta)(u)[:, jnp.asarray(free)]  # du[free] -> dtheta
-        p = theta.size
         rig = any(self.param_names[j] in RIG for j in free)
-        shapes = (jax.ShapeDtypeStruct((), t.dtype), jax.ShapeDtypeStruct((p, p), t.dtype),
-                  jax.ShapeDtypeStruct((p,), t.dtype))
-        cost, ctc, ctr = jax.pure_callback(
-            partial(weighted_normal_equations, names=self.law_names, stroke_mm=self.stroke_mm,
-                    rig_columns=rig),
-            shapes, theta, t, commands, signs, _ones_if_none(stretch, commands), direction, y,
-            weight, vmap_method="broadcast_all")
+        cost, ctc, ctr = _xla.normal_equations(
+            theta, t, commands, signs, _ones_if_none(stretch, commands), direction, y, weight,
+            names=self.law_names, stroke_mm=self.stroke_mm, rig_columns=rig)
         return cost, d_theta.T @ ctc @ d_theta, d_theta.T @ ctr
 
     def timing_normal_equations(self, u, t, commands, signs, stretch, direction, y, weight
@@ -307,23 +298,16 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     if varied is None:
         return channel
 
-    on_host = partial(channel_jacobian, names=names, stroke_mm=stroke_mm,
+    on_host = partial(_xla.jacobian, names=names, stroke_mm=stroke_mm,
                       rig_columns=any(j >= s + m + 1 for j in varied))
-    values = partial(channel_values, names=names, stroke_mm=stroke_mm)
+    values = partial(_xla.values, names=names, stroke_mm=stroke_mm)
     mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
 
-    @jax.custom_jvp
-    def simulated(theta, t, commands, signs, stretch, direction):
-        return jax.pure_callback(values, jax.ShapeDtypeStruct(t.shape, t.dtype), theta, t,
-                                 commands, signs, stretch, direction,
-                                 vmap_method="broadcast_all")
+    simulated = jax.custom_jvp(values)
 
     @simulated.defjvp
     def _(primals, tangents):
-        shapes = (jax.ShapeDtypeStruct(primals[1].shape, primals[1].dtype),
-                  jax.ShapeDtypeStruct((*primals[1].shape, primals[0].size), primals[1].dtype))
-        value, columns = jax.pure_callback(on_host, shapes, *primals,
-                                           vmap_method="broadcast_all")
+        value, columns = on_host(*primals)
         return value, columns @ jnp.where(mask, tangents[0], 0.0)
 
     return simulated

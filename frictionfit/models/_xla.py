@@ -1,0 +1,239 @@
+"""The compiled loop of :mod:`frictionfit.models._forward` as XLA's own operations.
+
+Each batch loop (the channel; the channel and its Jacobian; the weighted normal equations)
+is a C function (numba's ``cfunc``) registered with XLA as a foreign-function target and
+called from JAX with :func:`jax.ffi.ffi_call`. A program that calls it names the target,
+where a host callback would hold a Python object, so JAX keeps it in its persistent
+compilation cache and a new process loads it instead of compiling it again.
+
+A target reads XLA's call frame (``xla/ffi/api/c_api.h``, which jaxlib ships) itself: the
+frame's arguments and results are buffers (a data pointer and dimensions) in the order
+:func:`values`, :func:`jacobian` and :func:`normal_equations` pass them. The arguments of
+each call are broadcast to the same leading (batch) axes, as ``vmap`` leaves them; the loop
+takes those axes as its rows. When XLA asks a target for its metadata (the FFI version it
+was built for), the target answers it and returns.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from functools import cache
+
+import jax
+import jax.numpy as jnp
+import numba
+import numpy as np
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from frictionfit.models._forward import (
+    _batch,
+    _batch_normal,
+    _batch_value,
+    _lanes,
+    threads,
+)
+
+__all__ = ["jacobian", "normal_equations", "values"]
+
+#: The XLA FFI version the targets answer with (``XLA_FFI_API_MAJOR``, ``_MINOR``).
+_API_VERSION = (0, 3)
+_METADATA_EXTENSION = 1  # XLA_FFI_Extension_Metadata
+_API_VERSION_SIZE = 28  # sizeof(XLA_FFI_Api_Version) up to its last field
+# 64-bit words of XLA_FFI_CallFrame: extension_start; args.size, args.args;
+# rets.size, rets.rets
+_EXTENSION, _N_ARGS, _ARGS, _N_RETS, _RETS = 1, 7, 9, 12, 14
+
+
+@intrinsic
+def _address(typingctx, word):
+    """A 64-bit integer read from memory as the pointer it holds."""
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+    return types.voidptr(types.int64), codegen
+
+
+@numba.njit(inline="always")
+def _words(word, n):
+    """``n`` 64-bit words at the address ``word``."""
+    return numba.carray(_address(word), n, np.int64)
+
+
+@numba.njit(inline="always")
+def _answered_metadata(frame):
+    """If XLA's call asks for the target's metadata, write it and return True (the frame
+    then holds nothing else)."""
+    head = numba.carray(frame, _EXTENSION + 1, np.int64)
+    if head[_EXTENSION] == 0:
+        return False
+    base = _words(head[_EXTENSION], 4)  # struct_size, type, next, metadata
+    if base[1] & 0xFFFFFFFF != _METADATA_EXTENSION:
+        return False
+    meta = _words(base[3], 5)  # struct_size, api_version (4 words), traits
+    meta[1] = _API_VERSION_SIZE
+    meta[2] = 0  # api_version.extension_start
+    meta[3] = _API_VERSION[0] | (_API_VERSION[1] << 32)
+    meta[4] = 0  # no traits
+    return True
+
+
+@numba.njit(inline="always")
+def _flat(word, dtype):
+    """A buffer (XLA_FFI_Buffer: struct_size, extension_start, dtype, data, rank, dims) as a
+    flat array, and its last dimension (1 for a scalar)."""
+    fields = _words(word, 6)
+    dims = _words(fields[5], fields[4])
+    size, last = 1, 1
+    for d in dims:
+        size *= d
+        last = d
+    return numba.carray(_address(fields[3]), size, dtype), last
+
+
+@numba.njit(inline="always")
+def _rows(word, shape):
+    """A float64 buffer as ``shape`` (its leading axes flattened into the first)."""
+    return _flat(word, np.float64)[0].reshape(shape)
+
+
+@numba.njit(inline="always")
+def _call_frame(frame):
+    """The frame's argument and result words, the rows (the leading axes' size), and the
+    settings (stroke, rig columns, threads) and lanes of the last two arguments (a call to
+    execute: not a metadata query)."""
+    head = numba.carray(frame, _RETS + 1, np.int64)
+    args, rets = _words(head[_ARGS], head[_N_ARGS]), _words(head[_RETS], head[_N_RETS])
+    direction, _ = _flat(args[5], np.float64)
+    rows = direction.size
+    settings, _ = _flat(args[args.size - 2], np.float64)
+    lanes, _ = _flat(args[args.size - 1], np.int64)
+    return args, rets, rows, settings[:3], lanes[:10]
+
+
+@numba.njit(inline="always")
+def _inputs(args, rows):
+    """The common inputs: ``theta`` (rows, p), ``t`` (rows, n), ``commands``, ``signs``,
+    ``stretch`` (rows, c), ``direction`` (rows,)."""
+    theta, p = _flat(args[0], np.float64)
+    t, n = _flat(args[1], np.float64)
+    commands, c = _flat(args[2], np.float64)
+    signs, _ = _flat(args[3], np.float64)
+    stretch, _ = _flat(args[4], np.float64)
+    direction, _ = _flat(args[5], np.float64)
+    return (theta.reshape((rows, p)), t.reshape((rows, n)), commands.reshape((rows, c)),
+            signs.reshape((rows, c)), stretch.reshape((rows, c)), direction)
+
+
+def _values_target(frame):
+    """Target: the channel (rows, n)."""
+    if _answered_metadata(frame):
+        return _address(0)
+    args, rets, rows, settings, lanes = _call_frame(frame)
+    if rows == 0:
+        return _address(0)
+    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
+    _batch_value(theta, t, commands, signs, stretch, direction, settings[0], lanes,
+                 np.int64(settings[2]), _rows(rets[0], t.shape))
+    return _address(0)
+
+
+def _jacobian_target(frame):
+    """Target: the channel (rows, n) and its Jacobian (rows, n, p)."""
+    if _answered_metadata(frame):
+        return _address(0)
+    args, rets, rows, settings, lanes = _call_frame(frame)
+    if rows == 0:
+        return _address(0)
+    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
+    _batch(theta, t, commands, signs, stretch, direction, settings[0], lanes,
+           np.int64(settings[1]), np.int64(settings[2]), _rows(rets[0], t.shape),
+           _rows(rets[1], (rows, t.shape[1], theta.shape[1])))
+    return _address(0)
+
+
+def _normal_target(frame):
+    """Target: the weighted cost (rows,), ``C^T C`` (rows, p, p), ``C^T r`` (rows, p);
+    ``y`` and ``weight`` (rows, n) the 7th and 8th arguments."""
+    if _answered_metadata(frame):
+        return _address(0)
+    args, rets, rows, settings, lanes = _call_frame(frame)
+    if rows == 0:
+        return _address(0)
+    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
+    p = theta.shape[1]
+    _batch_normal(theta, t, commands, signs, stretch, direction, _rows(args[6], t.shape),
+                  _rows(args[7], t.shape), settings[0], lanes, np.int64(settings[1]),
+                  np.int64(settings[2]), _rows(rets[0], (rows,)), _rows(rets[1], (rows, p, p)),
+                  _rows(rets[2], (rows, p)))
+    return _address(0)
+
+
+_TARGETS = {"frictionfit_channel": _values_target,
+            "frictionfit_channel_jacobian": _jacobian_target,
+            "frictionfit_normal_equations": _normal_target}
+
+
+@cache
+def _registered() -> list:
+    """Compile (or load) the targets and register them with XLA, once per process; the
+    compiled targets are kept (their code lives as long as they do). numba's threads are
+    started first: a target loaded from numba's cache links to their runtime."""
+    threads()
+    kept = []
+    capsule = ctypes.pythonapi.PyCapsule_New
+    capsule.restype = ctypes.py_object
+    capsule.argtypes = (ctypes.c_void_p, ctypes.c_char_p, ctypes.c_void_p)
+    for name, target in _TARGETS.items():
+        kept.append(numba.cfunc(types.voidptr(types.voidptr), cache=True)(target))
+        jax.ffi.register_ffi_target(name, capsule(kept[-1].address, None, None),
+                                    platform="cpu")
+    return kept
+
+
+def _call(target: str, results: tuple, inputs: tuple, *, names: tuple[str, ...],
+          stroke_mm: float, rig_columns: bool = False):
+    """``target`` on ``inputs`` (each broadcast to ``t``'s leading axes; float64) then the
+    settings and lanes; ``results`` its result shapes."""
+    _registered()
+    theta, t = inputs[0], inputs[1]
+    lead = t.shape[:-1]
+    if theta.shape[:-1] != lead or any(np.shape(a)[:len(lead)] != lead for a in inputs[2:]):
+        raise ValueError(f"{target}: every input needs t's leading axes {lead}; got shapes "
+                         f"{[np.shape(a) for a in inputs]}")
+    settings = jnp.broadcast_to(jnp.array([stroke_mm, 3.0 if rig_columns else 0.0,
+                                           float(threads())]), (*lead, 3))
+    lanes = jnp.broadcast_to(jnp.asarray(_lanes(tuple(names))), (*lead, 10))
+    return jax.ffi.ffi_call(target, results, vmap_method="broadcast_all")(
+        *(jnp.asarray(a, dtype=jnp.float64) for a in inputs), settings, lanes)
+
+
+def values(theta, t, commands, signs, stretch, direction, *, names: tuple[str, ...],
+           stroke_mm: float):
+    """:func:`~frictionfit.models._forward.channel_values` as a JAX operation (N,
+    ``(..., n)``)."""
+    return _call("frictionfit_channel", jax.ShapeDtypeStruct(t.shape, jnp.float64),
+                 (theta, t, commands, signs, stretch, direction), names=names,
+                 stroke_mm=stroke_mm)
+
+
+def jacobian(theta, t, commands, signs, stretch, direction, *, names: tuple[str, ...],
+             stroke_mm: float, rig_columns: bool):
+    """:func:`~frictionfit.models._forward.channel_jacobian` as a JAX operation."""
+    shapes = (jax.ShapeDtypeStruct(t.shape, jnp.float64),
+              jax.ShapeDtypeStruct((*t.shape, theta.shape[-1]), jnp.float64))
+    return _call("frictionfit_channel_jacobian", shapes,
+                 (theta, t, commands, signs, stretch, direction), names=names,
+                 stroke_mm=stroke_mm, rig_columns=rig_columns)
+
+
+def normal_equations(theta, t, commands, signs, stretch, direction, y, weight, *,
+                     names: tuple[str, ...], stroke_mm: float, rig_columns: bool):
+    """:func:`~frictionfit.models._forward.weighted_normal_equations` as a JAX operation."""
+    lead, p = t.shape[:-1], theta.shape[-1]
+    shapes = (jax.ShapeDtypeStruct(lead, jnp.float64),
+              jax.ShapeDtypeStruct((*lead, p, p), jnp.float64),
+              jax.ShapeDtypeStruct((*lead, p), jnp.float64))
+    return _call("frictionfit_normal_equations", shapes,
+                 (theta, t, commands, signs, stretch, direction, y, weight), names=names,
+                 stroke_mm=stroke_mm, rig_columns=rig_columns)
