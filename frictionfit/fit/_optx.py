@@ -161,7 +161,7 @@ def solve_pooled(solver: optx.AbstractLeastSquaresSolver, fn: Callable, y0: np.n
     threads, a pool each (:func:`in_threads`; the split does not change results);
     ``progress(k)`` is called as ``k`` more problems finish. ``compiler_options``: XLA's
     for the compiled calls (e.g. :data:`~frictionfit.models.measurement.HOST_LOOP_COMPILER_OPTIONS`
-    where ``fn``'s work is a host callback).
+    where ``fn``'s work is the compiled contact loop).
     """
     if not isinstance(solver, optx.AbstractLeastSquaresSolver):
         raise FitError(f"{type(solver).__name__} is not an optimistix least-squares solver")

@@ -346,9 +346,8 @@ def fit_measurements(
     lmfit-style statistics, flags of what the data do not determine, a status each; with
     ``"auto"`` the BIC of every law in ``bic_table``, NaN where a law was not fitted).
 
-    The fits use every core by themselves; run several at once in processes, not threads
-    (their Jacobian is a host callback, and JAX's CPU callbacks can deadlock when two
-    threads of one process run such programs).
+    The fits use every core by themselves (the compiled contact loop shares a batch's rows
+    over them); to run several at once, use processes.
     """
     _check_rig(rig, items, fix)
     if timing not in ("movement", "rig"):
@@ -821,9 +820,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     held values' own uncertainty adds to the free parameters
     (:func:`~frictionfit.fit.session.held_covariance`).
 
-    The pools run in one host thread: the contact simulation's Jacobian is a host
-    callback (:mod:`frictionfit.models._forward`) that shares its rows over the cores
-    itself, and JAX's CPU callbacks can deadlock when two threads run such programs."""
+    The pools run in one host thread: the contact simulation's Jacobian is a compiled loop
+    (:mod:`frictionfit.models._forward`) that shares its rows over the cores itself."""
     fix = dict(fix or {})
     unknown = [n for n in fix if n not in model.param_names]
     if unknown:

@@ -42,17 +42,16 @@ from frictionfit.models.stick_slip import contact_force
 __all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "RIG", "MeasurementModel", "jit_host_loop",
            "to_unconstrained", "trapezoid"]
 
-#: XLA's options for a program whose work is this module's host callbacks (the compiled
-#: loop): LLVM's optimisation off. Such a program is the loop's calls and a little
-#: algebra around them (the solver's step), so it runs as fast and compiles in about half
-#: the time (docs/decisions.md, "Host-loop programs compiled without LLVM's optimisation").
-#: JAX never keeps a program with host callbacks in its persistent cache, so every
-#: process pays that compilation.
+#: XLA's options for a program whose work is the compiled loop (its XLA targets,
+#: :mod:`frictionfit.models._xla`): LLVM's optimisation off. Such a program is the loop's
+#: calls and a little algebra around them (the solver's step), so it runs as fast and
+#: compiles in about half the time (docs/decisions.md, "Host-loop programs compiled without
+#: LLVM's optimisation"). JAX keeps these programs in its persistent cache.
 HOST_LOOP_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 
 
 def jit_host_loop(fn: Callable) -> Callable:
-    """``jax.jit`` of ``fn``, a program whose work is the compiled loop's host callbacks
+    """``jax.jit`` of ``fn``, a program whose work is the compiled loop
     (:data:`HOST_LOOP_COMPILER_OPTIONS`)."""
     return jax.jit(fn, compiler_options=HOST_LOOP_COMPILER_OPTIONS)
 
@@ -279,7 +278,8 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     Its derivative is the channel's Jacobian in the ``varied`` entries of ``theta`` times
     their tangent, the Jacobian from the compiled loop of :mod:`frictionfit.models._forward`
     (the scan's ``jacfwd`` is bound by XLA's kernel launches); its value comes from that
-    loop too (a host callback, faster than XLA's scan even batched). A Jacobian of the whole
+    loop too (faster than XLA's scan even batched), both as XLA targets
+    (:mod:`frictionfit.models._xla`). A Jacobian of the whole
     residual (``jacfwd``) then evaluates the drive and the simulation once, whatever its
     number of parameters, and a held rig leaves the drive's tangents out of the contact.
     ``t``, ``commands``, ``signs``, ``stretch`` and ``direction`` are data: never
