@@ -12,8 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from frictionfit.models import MeasurementModel
-from frictionfit.models import _xla
+from frictionfit.models import MeasurementModel, _xla
 from frictionfit.models._forward import (
     channel_jacobian,
     channel_values,

@@ -1,17 +1,18 @@
 """The compiled loop of :mod:`frictionfit.models._forward` as XLA's own operations.
 
-Each batch loop (the channel; the channel and its Jacobian; the weighted normal equations)
-is a C function (numba's ``cfunc``) registered with XLA as a foreign-function target and
-called from JAX with :func:`jax.ffi.ffi_call`. A program that calls it names the target,
-where a host callback would hold a Python object, so JAX keeps it in its persistent
-compilation cache and a new process loads it instead of compiling it again.
+The batch loops (the channel; the channel and its Jacobian; the weighted normal equations)
+are one C function (numba's ``cfunc``) registered with XLA as a foreign-function target
+(:data:`TARGET`) and called from JAX with :func:`jax.ffi.ffi_call`. A program that calls it
+names the target, where a host callback would hold a Python object, so JAX keeps it in its
+persistent compilation cache and a new process loads it instead of compiling it again.
 
-A target reads XLA's call frame (``xla/ffi/api/c_api.h``, which jaxlib ships) itself: the
+The target reads XLA's call frame (``xla/ffi/api/c_api.h``, which jaxlib ships) itself: the
 frame's arguments and results are buffers (a data pointer and dimensions) in the order
-:func:`values`, :func:`jacobian` and :func:`normal_equations` pass them. The arguments of
+:func:`values`, :func:`jacobian` and :func:`normal_equations` pass them, the last two
+arguments its settings (which loop, the stroke, ...) and the law's lanes. The arguments of
 each call are broadcast to the same leading (batch) axes, as ``vmap`` leaves them; the loop
-takes those axes as its rows. When XLA asks a target for its metadata (the FFI version it
-was built for), the target answers it and returns.
+takes those axes as its rows. When XLA asks the target for its metadata (the FFI version
+it was built for), it answers and returns.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from frictionfit.models._forward import (
 
 __all__ = ["jacobian", "normal_equations", "values"]
 
-#: The XLA FFI version the targets answer with (``XLA_FFI_API_MAJOR``, ``_MINOR``).
+#: The XLA FFI version the target answers with (``XLA_FFI_API_MAJOR``, ``_MINOR``).
 _API_VERSION = (0, 3)
 _METADATA_EXTENSION = 1  # XLA_FFI_Extension_Metadata
 _API_VERSION_SIZE = 28  # sizeof(XLA_FFI_Api_Version) up to its last field
@@ -100,15 +101,15 @@ def _rows(word, shape):
 @numba.njit(inline="always")
 def _call_frame(frame):
     """The frame's argument and result words, the rows (the leading axes' size), and the
-    settings (stroke, rig columns, threads) and lanes of the last two arguments (a call to
-    execute: not a metadata query)."""
+    settings (stroke, rig columns, threads, kind) and lanes of the last two arguments (a
+    call to execute: not a metadata query)."""
     head = numba.carray(frame, _RETS + 1, np.int64)
     args, rets = _words(head[_ARGS], head[_N_ARGS]), _words(head[_RETS], head[_N_RETS])
     direction, _ = _flat(args[5], np.float64)
     rows = direction.size
     settings, _ = _flat(args[args.size - 2], np.float64)
     lanes, _ = _flat(args[args.size - 1], np.int64)
-    return args, rets, rows, settings[:3], lanes[:10]
+    return args, rets, rows, settings[:4], lanes[:10]
 
 
 @numba.njit(inline="always")
@@ -125,86 +126,70 @@ def _inputs(args, rows):
             signs.reshape((rows, c)), stretch.reshape((rows, c)), direction)
 
 
-def _values_target(frame):
-    """Target: the channel (rows, n)."""
+#: What the target computes, the 4th setting: the channel (rows, n); the channel and its
+#: Jacobian (rows, n, p); the weighted cost (rows,), ``C^T C`` (rows, p, p) and ``C^T r``
+#: (rows, p) with ``y`` and ``weight`` (rows, n) the 7th and 8th arguments.
+_VALUES, _JACOBIAN, _NORMAL = 0, 1, 2
+
+
+def _target(frame):
+    """The XLA target: the batch loop the settings name, on the frame's buffers."""
     if _answered_metadata(frame):
         return _address(0)
     args, rets, rows, settings, lanes = _call_frame(frame)
     if rows == 0:
         return _address(0)
     theta, t, commands, signs, stretch, direction = _inputs(args, rows)
-    _batch_value(theta, t, commands, signs, stretch, direction, settings[0], lanes,
-                 np.int64(settings[2]), _rows(rets[0], t.shape))
+    p, stroke, rig, n_threads = theta.shape[1], settings[0], settings[1], settings[2]
+    kind = np.int64(settings[3])
+    if kind == _VALUES:
+        _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes,
+                     np.int64(n_threads), _rows(rets[0], t.shape))
+    elif kind == _JACOBIAN:
+        _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, np.int64(rig),
+               np.int64(n_threads), _rows(rets[0], t.shape),
+               _rows(rets[1], (rows, t.shape[1], p)))
+    else:
+        _batch_normal(theta, t, commands, signs, stretch, direction, _rows(args[6], t.shape),
+                      _rows(args[7], t.shape), stroke, lanes, np.int64(rig),
+                      np.int64(n_threads), _rows(rets[0], (rows,)),
+                      _rows(rets[1], (rows, p, p)), _rows(rets[2], (rows, p)))
     return _address(0)
 
 
-def _jacobian_target(frame):
-    """Target: the channel (rows, n) and its Jacobian (rows, n, p)."""
-    if _answered_metadata(frame):
-        return _address(0)
-    args, rets, rows, settings, lanes = _call_frame(frame)
-    if rows == 0:
-        return _address(0)
-    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
-    _batch(theta, t, commands, signs, stretch, direction, settings[0], lanes,
-           np.int64(settings[1]), np.int64(settings[2]), _rows(rets[0], t.shape),
-           _rows(rets[1], (rows, t.shape[1], theta.shape[1])))
-    return _address(0)
-
-
-def _normal_target(frame):
-    """Target: the weighted cost (rows,), ``C^T C`` (rows, p, p), ``C^T r`` (rows, p);
-    ``y`` and ``weight`` (rows, n) the 7th and 8th arguments."""
-    if _answered_metadata(frame):
-        return _address(0)
-    args, rets, rows, settings, lanes = _call_frame(frame)
-    if rows == 0:
-        return _address(0)
-    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
-    p = theta.shape[1]
-    _batch_normal(theta, t, commands, signs, stretch, direction, _rows(args[6], t.shape),
-                  _rows(args[7], t.shape), settings[0], lanes, np.int64(settings[1]),
-                  np.int64(settings[2]), _rows(rets[0], (rows,)), _rows(rets[1], (rows, p, p)),
-                  _rows(rets[2], (rows, p)))
-    return _address(0)
-
-
-_TARGETS = {"frictionfit_channel": _values_target,
-            "frictionfit_channel_jacobian": _jacobian_target,
-            "frictionfit_normal_equations": _normal_target}
+#: The target's name. JAX's persistent cache keeps programs that name it from one version
+#: of frictionfit to the next: a change of its arguments' layout needs a new name.
+TARGET = "frictionfit_contact_loop_v1"
 
 
 @cache
-def _registered() -> list:
-    """Compile (or load) the targets and register them with XLA, once per process; the
-    compiled targets are kept (their code lives as long as they do). numba's threads are
+def _registered():
+    """Compile (or load) the target and register it with XLA, once per process; the
+    compiled target is kept (its code lives as long as it does). numba's threads are
     started first: a target loaded from numba's cache links to their runtime."""
     threads()
-    kept = []
+    compiled = numba.cfunc(types.voidptr(types.voidptr), cache=True)(_target)
     capsule = ctypes.pythonapi.PyCapsule_New
     capsule.restype = ctypes.py_object
     capsule.argtypes = (ctypes.c_void_p, ctypes.c_char_p, ctypes.c_void_p)
-    for name, target in _TARGETS.items():
-        kept.append(numba.cfunc(types.voidptr(types.voidptr), cache=True)(target))
-        jax.ffi.register_ffi_target(name, capsule(kept[-1].address, None, None),
-                                    platform="cpu")
-    return kept
+    jax.ffi.register_ffi_target(TARGET, capsule(compiled.address, None, None), platform="cpu")
+    return compiled
 
 
-def _call(target: str, results: tuple, inputs: tuple, *, names: tuple[str, ...],
+def _call(kind: int, results: tuple, inputs: tuple, *, names: tuple[str, ...],
           stroke_mm: float, rig_columns: bool = False):
-    """``target`` on ``inputs`` (each broadcast to ``t``'s leading axes; float64) then the
-    settings and lanes; ``results`` its result shapes."""
+    """The target's loop ``kind`` on ``inputs`` (each with ``t``'s leading axes; float64)
+    then the settings and lanes; ``results`` its result shapes."""
     _registered()
     theta, t = inputs[0], inputs[1]
     lead = t.shape[:-1]
     if theta.shape[:-1] != lead or any(np.shape(a)[:len(lead)] != lead for a in inputs[2:]):
-        raise ValueError(f"{target}: every input needs t's leading axes {lead}; got shapes "
+        raise ValueError(f"the contact loop: every input needs t's leading axes {lead}; got shapes "
                          f"{[np.shape(a) for a in inputs]}")
     settings = jnp.broadcast_to(jnp.array([stroke_mm, 3.0 if rig_columns else 0.0,
-                                           float(threads())]), (*lead, 3))
+                                           float(threads()), float(kind)]), (*lead, 4))
     lanes = jnp.broadcast_to(jnp.asarray(_lanes(tuple(names))), (*lead, 10))
-    return jax.ffi.ffi_call(target, results, vmap_method="broadcast_all")(
+    return jax.ffi.ffi_call(TARGET, results, vmap_method="broadcast_all")(
         *(jnp.asarray(a, dtype=jnp.float64) for a in inputs), settings, lanes)
 
 
@@ -212,7 +197,7 @@ def values(theta, t, commands, signs, stretch, direction, *, names: tuple[str, .
            stroke_mm: float):
     """:func:`~frictionfit.models._forward.channel_values` as a JAX operation (N,
     ``(..., n)``)."""
-    return _call("frictionfit_channel", jax.ShapeDtypeStruct(t.shape, jnp.float64),
+    return _call(_VALUES, jax.ShapeDtypeStruct(t.shape, jnp.float64),
                  (theta, t, commands, signs, stretch, direction), names=names,
                  stroke_mm=stroke_mm)
 
@@ -222,7 +207,7 @@ def jacobian(theta, t, commands, signs, stretch, direction, *, names: tuple[str,
     """:func:`~frictionfit.models._forward.channel_jacobian` as a JAX operation."""
     shapes = (jax.ShapeDtypeStruct(t.shape, jnp.float64),
               jax.ShapeDtypeStruct((*t.shape, theta.shape[-1]), jnp.float64))
-    return _call("frictionfit_channel_jacobian", shapes,
+    return _call(_JACOBIAN, shapes,
                  (theta, t, commands, signs, stretch, direction), names=names,
                  stroke_mm=stroke_mm, rig_columns=rig_columns)
 
@@ -234,6 +219,6 @@ def normal_equations(theta, t, commands, signs, stretch, direction, y, weight, *
     shapes = (jax.ShapeDtypeStruct(lead, jnp.float64),
               jax.ShapeDtypeStruct((*lead, p, p), jnp.float64),
               jax.ShapeDtypeStruct((*lead, p), jnp.float64))
-    return _call("frictionfit_normal_equations", shapes,
+    return _call(_NORMAL, shapes,
                  (theta, t, commands, signs, stretch, direction, y, weight), names=names,
                  stroke_mm=stroke_mm, rig_columns=rig_columns)
