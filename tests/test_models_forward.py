@@ -140,3 +140,21 @@ def test_a_program_calling_the_loop_is_kept_in_the_persistent_cache(tmp_path):
                            text=True, check=True).stdout for _ in range(2)]
     assert runs[0] == runs[1] and np.isfinite(float(runs[0]))
     assert list(tmp_path.glob("jit_contact_program-*"))
+
+
+def _channel_sum(inputs) -> float:
+    return float(channel_values(*inputs, names=LAWS["no_peak2"], stroke_mm=1.3).sum())
+
+
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+def test_a_forked_process_computes_the_channel_after_its_parent_used_the_xla_target():
+    """The NumPy path starts threads of its own in a child (its parent's are gone) and never
+    enters numba's threading layer, which OpenMP does not let a forked process use."""
+    import multiprocessing
+
+    inputs = _batch("no_peak2", (4,))[:6]
+    jax.jit(lambda *a: _xla.values(*a, names=LAWS["no_peak2"], stroke_mm=1.3))(*inputs)
+    _channel_sum(inputs)  # the parent's pool started
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        got = pool.map_async(_channel_sum, [inputs, inputs]).get(timeout=120)
+    assert got == [_channel_sum(inputs)] * 2

@@ -7,13 +7,16 @@ the same force and Jacobian (to ~1e-14 relative, tested against ``jax.jacfwd``) 
 faster. It covers what the whole-measurement fits differentiate: one channel of
 :class:`~frictionfit.models.MeasurementModel` (the rig's drive, the contact simulated from
 rest on a per-sample grid, the sensor), its Jacobian in every physical parameter. The loop
-releases the GIL; a batch's rows are shared by one thread per core (numba's ``prange``,
-:func:`threads`).
+releases the GIL; a batch's rows are shared by one host thread per core (for the XLA
+target, which cannot start Python threads, by numba's: :func:`threaded`).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import types
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 
 import numba
@@ -338,11 +341,11 @@ def _part(rows, parts, i):
     return i * rows // parts, (i + 1) * rows // parts
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes, threads,
                  value):
     """Each row's channel (:func:`_channel`'s value, no Jacobian) written into ``value``;
-    the rows shared by ``threads`` threads."""
+    the rows in ``threads`` parts (run in parallel by :func:`threaded`'s twin)."""
     rows, n, p = t.shape[0], t.shape[1], theta.shape[1]
     m = p - 7
     parts = max(1, min(rows, threads))
@@ -358,11 +361,10 @@ def _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes, t
             _readings(th, tb, x, speed, force, direction[b], value[b])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, r, threads, value,
            columns):
-    """Each row's channel and Jacobian (:func:`_channel`); the rows shared by ``threads``
-    threads."""
+    """Each row's channel and Jacobian (:func:`_channel`); the rows in ``threads`` parts."""
     rows = t.shape[0]
     parts = max(1, min(rows, threads))
     for part in numba.prange(parts):
@@ -400,11 +402,11 @@ def _weighted_products(columns, value, y, weight, ctc, ctr):
     return 0.5 * _dot(res, res)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _batch_normal(theta, t, commands, signs, stretch, direction, y, weight, stroke, lanes, r,
                   threads, cost, ctc, ctr):
-    """Each row's :func:`_weighted_products` of its channel and Jacobian; the rows shared
-    by ``threads`` threads."""
+    """Each row's :func:`_weighted_products` of its channel and Jacobian; the rows in
+    ``threads`` parts."""
     rows, n, p = t.shape[0], t.shape[1], theta.shape[1]
     parts = max(1, min(rows, threads))
     for part in numba.prange(parts):
@@ -462,6 +464,20 @@ def timing_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.ndarr
     return cost, ctc, ctr
 
 
+def _on_rows(kernel, inputs: list[np.ndarray], consts: tuple, outputs: list[np.ndarray]):
+    """``kernel(*inputs, *consts, 1, *outputs)`` over a batch's rows (the leading axis of
+    every input and output), shared by one host thread per core, each writing its own (no
+    threading layer of numba's: safe in threads and in a forked process alike)."""
+    rows = inputs[0].shape[0]
+    parts = np.array_split(np.arange(rows), max(1, min(rows, available_cores())))
+    if len(parts) == 1:
+        kernel(*inputs, *consts, 1, *outputs)
+        return
+    list(_threads().map(
+        lambda i: kernel(*(a[i] for a in inputs), *consts, 1, *(o[i] for o in outputs)),
+        [slice(q[0], q[-1] + 1) for q in parts]))
+
+
 def _flat(arrays, lead: tuple[int, ...]) -> list[np.ndarray]:
     """Each array as float64 rows: its ``lead`` axes flattened into one."""
     rows = math.prod(lead)
@@ -478,7 +494,7 @@ def channel_values(theta: np.ndarray, t: np.ndarray, commands: np.ndarray, signs
     lead, n = t.shape[:-1], t.shape[-1]
     inputs = _flat((theta, t, commands, signs, stretch, direction), lead)
     value = np.empty((len(inputs[0]), n))
-    _batch_value(*inputs, stroke_mm, _lanes(tuple(names)), threads(), value)
+    _on_rows(_batch_value, inputs, (stroke_mm, _lanes(tuple(names))), [value])
     return value.reshape(*lead, n)
 
 
@@ -498,8 +514,8 @@ def channel_jacobian(theta: np.ndarray, t: np.ndarray, commands: np.ndarray,
     lead, (n, p) = t.shape[:-1], (t.shape[-1], theta.shape[-1])
     inputs = _flat((theta, t, commands, signs, stretch, direction), lead)
     value, columns = np.empty((len(inputs[0]), n)), np.empty((len(inputs[0]), n, p))
-    _batch(*inputs, stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0, threads(), value,
-           columns)
+    _on_rows(_batch, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
+             [value, columns])
     return value.reshape(*lead, n), columns.reshape(*lead, n, p)
 
 
@@ -517,8 +533,8 @@ def weighted_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.nda
     inputs = _flat((theta, t, commands, signs, stretch, direction, y, weight), lead)
     rows = len(inputs[0])
     cost, ctc, ctr = np.empty(rows), np.empty((rows, p, p)), np.empty((rows, p))
-    _batch_normal(*inputs, stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0, threads(),
-                  cost, ctc, ctr)
+    _on_rows(_batch_normal, inputs, (stroke_mm, _lanes(tuple(names)), 3 if rig_columns else 0),
+             [cost, ctc, ctr])
     return cost.reshape(lead), ctc.reshape(*lead, p, p), ctr.reshape(*lead, p)
 
 
@@ -526,6 +542,25 @@ def weighted_normal_equations(theta: np.ndarray, t: np.ndarray, commands: np.nda
 def _lanes(names: tuple[str, ...]) -> np.ndarray:
     """Where each of :data:`LANES` sits in ``names`` (-1: absent)."""
     return np.array([names.index(nm) if nm in names else -1 for nm in LANES], np.int64)
+
+
+@cache
+def _threads() -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(available_cores(), thread_name_prefix="frictionfit-contact")
+
+
+# a forked process has none of its parent's threads: it starts a pool of its own
+os.register_at_fork(after_in_child=_threads.cache_clear)
+
+
+def threaded(kernel):
+    """A batch loop compiled again with its parts run in parallel by numba's threads
+    (``prange``), for callers that cannot start threads themselves (the XLA target); a
+    function of its own name, so that numba's cache keeps both."""
+    f = kernel.py_func
+    twin = types.FunctionType(f.__code__, f.__globals__, f"{f.__name__}_threaded")
+    twin.__qualname__ = twin.__name__
+    return numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)(twin)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -539,9 +574,9 @@ def _started(n):
 
 @cache
 def threads() -> int:
-    """Threads the batch loops share a batch's rows over: one per core where numba's
-    threading layer lets several callers start loops at once (OpenMP, TBB: the loops are
-    called from JAX's and the user's threads alike), else 1 (its ``workqueue`` layer, which
-    must not be entered by two threads at once)."""
+    """Threads a :func:`threaded` loop may use: one per core where numba's threading layer
+    lets several callers start loops at once (OpenMP, TBB: XLA calls the target from its own
+    threads), else 1 (its ``workqueue`` layer must not be entered by two threads at once:
+    the serial loops are used instead)."""
     _started(1)
     return available_cores() if numba.threading_layer() in ("omp", "tbb") else 1

@@ -33,6 +33,7 @@ from frictionfit.models._forward import (
     _batch_normal,
     _batch_value,
     _lanes,
+    threaded,
     threads,
 )
 
@@ -132,28 +133,44 @@ def _inputs(args, rows):
 _VALUES, _JACOBIAN, _NORMAL = 0, 1, 2
 
 
+_batch_value_threaded = threaded(_batch_value)
+_batch_threaded = threaded(_batch)
+_batch_normal_threaded = threaded(_batch_normal)
+
+
 def _target(frame):
-    """The XLA target: the batch loop the settings name, on the frame's buffers."""
+    """The XLA target: the batch loop the settings name, on the frame's buffers (its
+    threaded twin where the settings allow more than one thread)."""
     if _answered_metadata(frame):
         return _address(0)
     args, rets, rows, settings, lanes = _call_frame(frame)
     if rows == 0:
         return _address(0)
-    theta, t, commands, signs, stretch, direction = _inputs(args, rows)
-    p, stroke, rig, n_threads = theta.shape[1], settings[0], settings[1], settings[2]
-    kind = np.int64(settings[3])
+    inputs = _inputs(args, rows)
+    theta, t = inputs[0], inputs[1]
+    n, p, stroke, rig = t.shape[1], theta.shape[1], settings[0], np.int64(settings[1])
+    n_threads, kind = np.int64(settings[2]), np.int64(settings[3])
     if kind == _VALUES:
-        _batch_value(theta, t, commands, signs, stretch, direction, stroke, lanes,
-                     np.int64(n_threads), _rows(rets[0], t.shape))
+        value = _rows(rets[0], (rows, n))
+        if n_threads > 1:
+            _batch_value_threaded(*inputs, stroke, lanes, n_threads, value)
+        else:
+            _batch_value(*inputs, stroke, lanes, 1, value)
     elif kind == _JACOBIAN:
-        _batch(theta, t, commands, signs, stretch, direction, stroke, lanes, np.int64(rig),
-               np.int64(n_threads), _rows(rets[0], t.shape),
-               _rows(rets[1], (rows, t.shape[1], p)))
+        value, columns = _rows(rets[0], (rows, n)), _rows(rets[1], (rows, n, p))
+        if n_threads > 1:
+            _batch_threaded(*inputs, stroke, lanes, rig, n_threads, value, columns)
+        else:
+            _batch(*inputs, stroke, lanes, rig, 1, value, columns)
     else:
-        _batch_normal(theta, t, commands, signs, stretch, direction, _rows(args[6], t.shape),
-                      _rows(args[7], t.shape), stroke, lanes, np.int64(rig),
-                      np.int64(n_threads), _rows(rets[0], (rows,)),
-                      _rows(rets[1], (rows, p, p)), _rows(rets[2], (rows, p)))
+        y, weight = _rows(args[6], (rows, n)), _rows(args[7], (rows, n))
+        cost, ctc, ctr = (_rows(rets[0], (rows,)), _rows(rets[1], (rows, p, p)),
+                          _rows(rets[2], (rows, p)))
+        if n_threads > 1:
+            _batch_normal_threaded(*inputs, y, weight, stroke, lanes, rig, n_threads, cost,
+                                   ctc, ctr)
+        else:
+            _batch_normal(*inputs, y, weight, stroke, lanes, rig, 1, cost, ctc, ctr)
     return _address(0)
 
 
