@@ -39,8 +39,10 @@ from frictionfit.models._forward import (
 
 __all__ = ["jacobian", "normal_equations", "values"]
 
-#: The XLA FFI version the target answers with (``XLA_FFI_API_MAJOR``, ``_MINOR``).
-_API_VERSION = (0, 3)
+#: The XLA FFI version the target is written for (``XLA_FFI_API_MAJOR``, ``_MINOR``): the
+#: call frame, buffers and metadata of 0.1 (jaxlib 0.5-0.7), which later versions extend at
+#: their ends and accept from a handler.
+_API_VERSION = (0, 1)
 _METADATA_EXTENSION = 1  # XLA_FFI_Extension_Metadata
 _API_VERSION_SIZE = 28  # sizeof(XLA_FFI_Api_Version) up to its last field
 # 64-bit words of XLA_FFI_CallFrame: extension_start; args.size, args.args;
