@@ -42,7 +42,7 @@ from frictionfit.models.stick_slip import contact_force
 __all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "RIG", "MeasurementModel", "jit_host_loop",
            "to_unconstrained", "trapezoid"]
 
-#: XLA's options for a program whose work is the compiled loop (its XLA targets,
+#: XLA's options for a program whose work is the compiled loop (its XLA target,
 #: :mod:`frictionfit.models._xla`): LLVM's optimisation off. Such a program is the loop's
 #: calls and a little algebra around them (the solver's step), so it runs as fast and
 #: compiles in about half the time (docs/decisions.md, "Host-loop programs compiled without
@@ -278,7 +278,7 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     Its derivative is the channel's Jacobian in the ``varied`` entries of ``theta`` times
     their tangent, the Jacobian from the compiled loop of :mod:`frictionfit.models._forward`
     (the scan's ``jacfwd`` is bound by XLA's kernel launches); its value comes from that
-    loop too (faster than XLA's scan even batched), both as XLA targets
+    loop too (faster than XLA's scan even batched), both through its XLA target
     (:mod:`frictionfit.models._xla`). A Jacobian of the whole
     residual (``jacfwd``) then evaluates the drive and the simulation once, whatever its
     number of parameters, and a held rig leaves the drive's tangents out of the contact.
@@ -298,8 +298,8 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     if varied is None:
         return channel
 
-    on_host = partial(_xla.jacobian, names=names, stroke_mm=stroke_mm,
-                      rig_columns=any(j >= s + m + 1 for j in varied))
+    with_jacobian = partial(_xla.jacobian, names=names, stroke_mm=stroke_mm,
+                            rig_columns=any(j >= s + m + 1 for j in varied))
     values = partial(_xla.values, names=names, stroke_mm=stroke_mm)
     mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
 
@@ -307,7 +307,7 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
 
     @simulated.defjvp
     def _(primals, tangents):
-        value, columns = on_host(*primals)
+        value, columns = with_jacobian(*primals)
         return value, columns @ jnp.where(mask, tangents[0], 0.0)
 
     return simulated
