@@ -83,8 +83,12 @@ def _batch(law: str, lead: tuple[int, ...]):
     return [np.stack(a).reshape(*lead, *np.shape(a[0])) for a in zip(*rows, strict=True)]
 
 
-@pytest.mark.parametrize("law", ["relaxation2", "no_peak2"])
-def test_xla_targets_give_the_loops_numbers_jitted_and_vmapped(law):
+@pytest.mark.parametrize(("law", "one_thread"), [("relaxation2", False), ("no_peak2", False),
+                                               ("relaxation2", True)])
+def test_xla_targets_give_the_loops_numbers_jitted_and_vmapped(law, one_thread, monkeypatch):
+    """``one_thread``: the serial loops, as where numba has only its ``workqueue`` layer."""
+    if one_thread:
+        monkeypatch.setattr(_xla, "threads", lambda: 1)
     theta, t, cmd, signs, stretch, direction, y, weight = _batch(law, (2, 3))
     kw = dict(names=LAWS[law], stroke_mm=1.3)
     want_v, want_j = channel_jacobian(theta, t, cmd, signs, stretch, direction,
