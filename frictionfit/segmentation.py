@@ -29,7 +29,6 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
-from scipy.stats import median_abs_deviation
 
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Channel, Recording, kept_per_recording
@@ -92,6 +91,20 @@ class Motion:
     problems: tuple[str, ...] = ()
 
 
+#: The median absolute deviation of a normal sample over its sd (``scipy.special.ndtri(0.75)``).
+_MAD_PER_SD = 0.6744897501960817
+
+
+def robust_sd(x: np.ndarray, axis: int | None = None, centre: float | None = None):
+    """The sd of a normal sample from its median absolute deviation about its median (or
+    about ``centre``), along ``axis``: ``scipy.stats.median_abs_deviation(x, axis,
+    scale="normal")`` to the bit, without importing ``scipy.stats`` (0.7 s of every process
+    that fits)."""
+    x = np.asarray(x)
+    mid = np.median(x, axis=axis, keepdims=True) if centre is None else centre
+    return np.median(np.abs(x - mid), axis=axis) / _MAD_PER_SD
+
+
 def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
     """Centred moving average over ``n`` samples along axis 0, ignoring NaN; same length
     (a signal shorter than ``n`` is averaged over its own length)."""
@@ -150,7 +163,7 @@ def suspect_samples(grid: np.ndarray, *, stuck_min: int = STUCK_MIN
             good = ok[:, j] & ~spike[:, j]
             smooth = np.interp(idx, idx[good], x[good, j])  # spikes found so far bridged
             resid = np.where(ok[:, j], x[:, j], smooth) - median_filter(smooth, 7, mode="nearest")
-            spread = median_abs_deviation(resid, scale="normal")
+            spread = robust_sd(resid)
             # a sharp static peak is no spike: compare with the local sample-to-sample change
             slope = median_filter(np.abs(np.diff(smooth, prepend=smooth[0])), 7, mode="nearest")
             new = ok[:, j] & (np.abs(resid) > np.maximum(max(12 * spread, 0.05), 4 * slope))
@@ -297,8 +310,7 @@ def _stops(s: np.ndarray, ok: np.ndarray, rate: float, starts: list[float | None
              float(np.sign(s[min(int(a) + int(0.05 * rate), s.size - 1)] - s[int(a)]))
              for a in starts]
     # robust sd of the departures from the local mean (about zero, not their median)
-    noise = float(median_abs_deviation(s - moving_average(s, 15), center=lambda x, axis: 0.0,
-                                       scale="normal"))
+    noise = float(robust_sd(s - moving_average(s, 15), centre=0.0))
     stops = [None if a is None else _refine_stop(s, ok, rate, a, g, (0.03, 0.25), noise)
              for a, g in zip(starts, signs, strict=True)]
     durations = [(b - a) / rate for a, b in zip(starts, stops, strict=True)

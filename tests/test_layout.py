@@ -47,3 +47,14 @@ def test_entry_points_import_from_the_package_lazily():
         "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
         "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))"
     ).split() == ["False", "True"]
+
+
+def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
+    # scipy.stats (which emcee imports) takes ~0.7 s of every process that fits
+    assert _python(
+        "import sys, tempfile; from typer.testing import CliRunner;"
+        "from frictionfit.cli import app; import frictionfit.fit.measurement;"
+        "r = CliRunner().invoke(app, ['fit', tempfile.mkdtemp(), '--out',"
+        "                             tempfile.mkdtemp() + '/fits.csv']);"
+        "assert 'no recording could be fitted' in r.output, r.output;"
+        "print('emcee' in sys.modules, 'scipy.stats' in sys.modules)").split() == ["False", "False"]

@@ -7,7 +7,13 @@ import pytest
 
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Event, Recording
-from frictionfit.segmentation import moving_average, regrid, segment, suspect_samples
+from frictionfit.segmentation import (
+    moving_average,
+    regrid,
+    robust_sd,
+    segment,
+    suspect_samples,
+)
 
 
 def _measurement(n_motions=3, rate=1000.0):
@@ -43,6 +49,17 @@ def test_dropped_samples_become_nan_on_the_grid():
 def test_moving_average_ignores_nan():
     x = np.array([1.0, 2.0, np.nan, 4.0, 5.0])
     np.testing.assert_allclose(moving_average(x, 3), [1.5, 1.5, 3.0, 4.5, 4.5])
+
+
+def test_robust_sd_is_scipys_normal_scaled_median_absolute_deviation():
+    from scipy.stats import median_abs_deviation
+
+    x = np.random.default_rng(3).standard_t(3, size=(101, 4))
+    assert robust_sd(x[:, 0]) == median_abs_deviation(x[:, 0], scale="normal")
+    assert np.array_equal(robust_sd(x, axis=0), median_abs_deviation(x, axis=0, scale="normal"))
+    about_zero = median_abs_deviation(x[:, 1], center=lambda a, axis: 0.0, scale="normal")
+    assert robust_sd(x[:, 1], centre=0.0) == about_zero != robust_sd(x[:, 1])
+    assert np.isnan(robust_sd(np.array([1.0, np.nan, 2.0])))
 
 
 def test_moving_average_of_a_signal_shorter_than_its_window_keeps_the_length():

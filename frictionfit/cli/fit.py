@@ -80,12 +80,13 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    from frictionfit.uncertainty import METHODS
+    if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~1 s)
+        from frictionfit.uncertainty import METHODS
 
-    if uncertainty not in ("none", *METHODS):
-        raise typer.BadParameter(f"{uncertainty!r}: choose none, {', '.join(METHODS[:-1])} "
-                                 f"or {METHODS[-1]}",
-                                 param_hint="--uncertainty")
+        if uncertainty not in METHODS:
+            raise typer.BadParameter(f"{uncertainty!r}: choose none, {', '.join(METHODS[:-1])} "
+                                     f"or {METHODS[-1]}",
+                                     param_hint="--uncertainty")
     given = dict(zip(_PER_MOTION, (chains is not None, tie, scheduler, n_starts != 1,
                                    solver != "lm"), strict=True))
     if whole:

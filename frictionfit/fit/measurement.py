@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
-from scipy.stats import median_abs_deviation
 from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
@@ -56,7 +55,7 @@ from frictionfit.models.measurement import (
 )
 from frictionfit.models.stick_slip import maxwell_branches
 from frictionfit.recording import Recording
-from frictionfit.segmentation import checked_grid, moving_average
+from frictionfit.segmentation import checked_grid, moving_average, robust_sd
 
 __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
            "normal_fn", "profile_drops", "residual_fn", "stack_items"]
@@ -462,7 +461,7 @@ def _rig_starts(items: Sequence[MeasurementData], fit: FitResult) -> dict[int, d
         median = {p: float(np.median(fit.values[p].to_numpy()[rows])) for p in RIG}
         log_ramp = np.log(fit.values["ramp"].to_numpy()[rows])
         limit = max(RIG_OUTLIER_MIN,
-                    RIG_OUTLIER_SDS * median_abs_deviation(log_ramp, scale="normal"))
+                    RIG_OUTLIER_SDS * robust_sd(log_ramp))
         for i, off in zip(rows, np.abs(log_ramp - np.log(median["ramp"])) > limit, strict=True):
             if off:
                 starts[i] = median

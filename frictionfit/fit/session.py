@@ -18,11 +18,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
 from frictionfit.errors import Status
 from frictionfit.fit.result import FitResult
 from frictionfit.models import PARAMS, MeasurementModel
+from frictionfit.segmentation import robust_sd
 
 __all__ = ["SESSION_RIG", "SessionRig", "estimate_session_rigs", "held_covariance",
            "held_profile", "read_session_rigs", "write_session_rigs"]
@@ -67,7 +67,7 @@ def estimate_session_rigs(sessions: Sequence[str], result: FitResult) -> dict[st
         if pick.sum() < MIN_RECORDINGS:
             continue
         centre = np.median(u[pick], axis=0)
-        robust_var = median_abs_deviation(u[pick], axis=0, scale="normal") ** 2
+        robust_var = robust_sd(u[pick], axis=0) ** 2
         own = np.stack([_block(result, i) for i in np.flatnonzero(pick)])
         fit_var = np.nanmedian(np.diagonal(own, axis1=1, axis2=2), axis=0)
         between = np.clip(robust_var - np.nan_to_num(fit_var), 0.0, None)

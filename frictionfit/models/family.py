@@ -86,7 +86,9 @@ class NamedParameters:
 
     def physical(self, u):
         """Physical values (dict name -> array) from unconstrained ``u[..., n_params]``."""
-        return {p.name: p.to_physical(u[..., i]) for i, p in enumerate(self.params)}
+        columns = (u[..., i] for i in range(self.n_params)) if isinstance(u, np.ndarray) \
+            else jnp.unstack(u, axis=-1)  # one operation in a traced program, not one per column
+        return {p.name: p.to_physical(c) for p, c in zip(self.params, columns, strict=True)}
 
     def prior_residuals(self, u, sampling: bool = False):
         """``(x_j - centre_j) / sd_j`` per prior, shape ``(..., n_priors)``, where ``x_j`` is

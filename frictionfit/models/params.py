@@ -11,6 +11,7 @@ minimises it with the data (a MAP estimate) and the posterior includes it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import jax.numpy as jnp
 import numpy as np
@@ -68,13 +69,16 @@ class Param:
         if self.transform == "identity":
             return u
         xp = jnp if not isinstance(u, (float, np.ndarray, np.generic)) else np
-        lo, hi = self._span(xp)
+        lo, hi = self.span
         return lo + (hi - lo) * 0.5 * (1.0 + xp.tanh(0.5 * u))  # the logistic, without overflow
 
-    def _span(self, xp):
+    @cached_property
+    def span(self) -> tuple[float, float]:
+        """The bounds on the sampling coordinate (their logs for ``loglogit``), as floats:
+        constants, not operations, in a traced program."""
         if self.transform == "loglogit":
-            return xp.log(self.lower), xp.log(self.upper)
-        return self.lower, self.upper
+            return float(np.log(self.lower)), float(np.log(self.upper))
+        return float(self.lower), float(self.upper)
 
     def to_physical(self, u):
         """Physical value (in ``unit``) of unconstrained ``u``; works on JAX and NumPy arrays."""
@@ -90,7 +94,7 @@ class Param:
         """Unconstrained ``u`` of a physical value; values on or past a bound are pulled inside."""
         if self.transform == "identity":
             return np.asarray(value, dtype=np.float64)
-        lo, hi = self._span(np)
+        lo, hi = self.span
         v = np.log(np.asarray(value, dtype=np.float64)) if self.transform == "loglogit" else value
         frac = np.clip((v - lo) / (hi - lo), 1e-9, 1 - 1e-9)
         return np.log(frac) - np.log1p(-frac)
@@ -99,7 +103,7 @@ class Param:
         """True where ``value`` sits within ``rtol`` (of the transformed span) of a bound."""
         if self.transform == "identity":
             return np.zeros(np.shape(value), dtype=bool)
-        lo, hi = self._span(np)
+        lo, hi = self.span
         v = np.log(value) if self.transform == "loglogit" else np.asarray(value)
         frac = (v - lo) / (hi - lo)
         return (frac < rtol) | (frac > 1 - rtol)

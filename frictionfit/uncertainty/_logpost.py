@@ -69,9 +69,9 @@ def log_prior(model: ContactModel, u):
 
 def sampling_bounds(model: ContactModel) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bound of each sampling coordinate (+/-inf for offsets)."""
-    lo = np.array([-np.inf if p.transform == "identity" else float(p._span(np)[0])
+    lo = np.array([-np.inf if p.transform == "identity" else p.span[0]
                    for p in model.params])
-    hi = np.array([np.inf if p.transform == "identity" else float(p._span(np)[1])
+    hi = np.array([np.inf if p.transform == "identity" else p.span[1]
                    for p in model.params])
     return lo, hi
 
