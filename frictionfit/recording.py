@@ -443,6 +443,9 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
     Recording
     """
     csv_path, json_path = _paths(path)
+    if not csv_path.exists() and not json_path.exists():
+        raise RecordingError("no such recording: neither it nor its .json sidecar exists",
+                             path=csv_path)
     side = _read_sidecar(json_path)
     if not csv_path.exists():
         raise RecordingError("data file is missing", path=csv_path)

@@ -83,7 +83,7 @@ def test_plot_and_info_name_a_missing_file(tmp_path):
     for cmd in ("plot", "info"):
         result = runner.invoke(app, [cmd, str(tmp_path / "nothing.csv")])
         assert result.exit_code == 2
-        assert "sidecar file is missing" in result.output
+        assert "nothing.csv: no such recording" in result.output
 
 
 def test_info_counts_labels_and_sessions(simulated):

@@ -186,6 +186,8 @@ def test_missing_sidecar_and_data_file(tmp_path, rng):
     (tmp_path / "q.csv").unlink()
     with pytest.raises(RecordingError, match=r"q\.csv: data file is missing"):
         read_recording(tmp_path / "q")
+    with pytest.raises(RecordingError, match=r"typo\.csv: no such recording"):
+        read_recording(tmp_path / "typo.csv")
 
 
 def test_gaps_are_reported_not_raised(tmp_path, rng):
