@@ -311,9 +311,9 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
     """
     import jax
 
-    from frictionfit.fit import BatchedLevenbergMarquardt
     from frictionfit.fit._optx import solve_pooled
     from frictionfit.fit._problem import residual_fn
+    from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 
     ts = simulate_trials(DEFAULT_MODEL, n, seed=seed + 2)
     model = get_model(DEFAULT_MODEL)
@@ -328,7 +328,8 @@ def _solve_configs(seed: int, pool: int, n: int = 128, reps: int = 3) -> list[di
                                       problem)
 
         def solve():
-            u, status, _ = solve_pooled(BatchedLevenbergMarquardt(), residual_fn(model, free),
+            solver = BatchedLevenbergMarquardt(rtol=DATA_RTOL, ftol=DATA_FTOL)
+            u, status, _ = solve_pooled(solver, residual_fn(model, free),
                                         u0.astype(dtype), data, pool_size=chunk,
                                         max_steps=100, threads=threads)
             ok = (status == Status.CONVERGED) & np.all(np.isfinite(u), axis=1)
@@ -368,9 +369,9 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
     """
     import optimistix as optx
 
-    from frictionfit.fit import BatchedLevenbergMarquardt
     from frictionfit.fit._optx import solve_pooled
     from frictionfit.fit._problem import residual_fn
+    from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 
     n, free = len(u0), tuple(range(model.n_params))
     data = Problem.of(_trials(ts), u0)
@@ -386,7 +387,7 @@ def _solver_paths(ts: TrialSet, model: ContactModel, u0: np.ndarray, pool: int,
         return _vmapped_rounds(model, free, u0, data, optx.LevenbergMarquardt(rtol=1e-8,
                                                                              atol=1e-8), pool)
 
-    calls = {"lm driver": pooled(BatchedLevenbergMarquardt()),
+    calls = {"lm driver": pooled(BatchedLevenbergMarquardt(rtol=DATA_RTOL, ftol=DATA_FTOL)),
              "optx-lm driver": pooled(optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)),
              "optx-lm rounds": rounds}
     runs = alternate(calls, repeats=reps, warmup=True)

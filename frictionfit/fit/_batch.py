@@ -20,7 +20,7 @@ from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult, param_table
-from frictionfit.fit.solver import BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 from frictionfit.fit.trials import Trials, as_trials
 from frictionfit.models import FAMILY, PARAMS, get_model
 
@@ -176,8 +176,8 @@ def _tie(fit, model, tie, groups):
 def fit_trials(
     y, t=None, drive_input=None, *, model: str = "auto", direction=None, drive: str = "events",
     solver: str | optx.AbstractLeastSquaresSolver = "lm", max_steps: int = 100,
-    steps_per_round: int = 4, chunk_size: int = 32, rtol: float = 1e-8, atol: float = 1e-8,
-    ftol: float = 1e-6, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
+    steps_per_round: int = 4, chunk_size: int = 32, rtol: float = DATA_RTOL, atol: float = 1e-8,
+    ftol: float = DATA_FTOL, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
     fix: Mapping[str, float] | None = None, tie: Sequence[str] = (), groups=None,
     stroke_mm: float = 1.0, priors: Mapping[str, tuple[float, float] | None] | None = None,
 ) -> FitResult:

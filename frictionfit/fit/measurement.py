@@ -45,7 +45,7 @@ from frictionfit.fit.session import (
     held_covariance,
     held_profile,
 )
-from frictionfit.fit.solver import BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import (
     HOST_LOOP_COMPILER_OPTIONS,
@@ -811,9 +811,9 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
          restart: bool = True, held_cov: np.ndarray | None = None) -> FitResult:
     """One batched fit of ``items`` with ``fix`` held (see :func:`fit_measurements`);
     ``tolerances``: MINPACK-named tolerances (``ftol``, ``xtol``, ``gtol``; relative) in place
-    of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`'s defaults. ``final=False``
-    (a fit another one polishes): no derived quantities, and the "trades off" flags are
-    not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
+    of those for noisy data (:data:`~frictionfit.fit.solver.DATA_FTOL`, ``DATA_RTOL``).
+    ``final=False`` (a fit another one polishes): no derived quantities, and the "trades off"
+    flags are not checked along their profiles (a fifth of the CPU time of a whole-fit batch).
     ``restart=False``: no slow branch solved again (:func:`_slow_branch_restarted`; for
     fits started from an optimum where it was). ``held_cov``: per item, the covariance that
     held values' own uncertainty adds to the free parameters
@@ -835,8 +835,9 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
     residual = residual_fn(model, free)
     # MINPACK's names -> the solver's fields: xtol is its rtol, gtol its atol
     field = {"ftol": "ftol", "xtol": "rtol", "gtol": "atol"}
+    chosen = {"ftol": DATA_FTOL, "xtol": DATA_RTOL} | dict(tolerances or {})
     solver = BatchedLevenbergMarquardt(normal=normal_fn(model, free),
-                                       **{field[k]: v for k, v in (tolerances or {}).items()})
+                                       **{field[k]: v for k, v in chosen.items()})
     branches = not {"relax_frac", "tau", "relax_frac2", "tau2"} & set(fix)
 
     def solve(start: np.ndarray, rows: np.ndarray, bar=None) -> tuple:

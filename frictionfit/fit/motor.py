@@ -21,7 +21,7 @@ import numpy as np
 import optimistix as optx
 
 from frictionfit.errors import RecordingError
-from frictionfit.fit.solver import BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 from frictionfit.models.measurement import trapezoid
 from frictionfit.recording import Recording, kept_per_recording
 
@@ -73,8 +73,8 @@ def _solve(n_moves: int):
 
     def solve(z0, t, x, weight, signs):
         args = (t, x, weight, signs)
-        sol = optx.least_squares(residual, BatchedLevenbergMarquardt(), z0, args=args,
-                                 max_steps=200, throw=False)
+        solver = BatchedLevenbergMarquardt(rtol=DATA_RTOL, ftol=DATA_FTOL)
+        sol = optx.least_squares(residual, solver, z0, args=args, max_steps=200, throw=False)
         return sol.value, sol.result == optx.RESULTS.successful, residual(sol.value, args)
 
     return jax.jit(solve)

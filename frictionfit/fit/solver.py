@@ -39,9 +39,13 @@ import optimistix as optx
 
 from frictionfit.fit._numerics import normal_equations
 
-__all__ = ["BatchedLevenbergMarquardt"]
+__all__ = ["DATA_FTOL", "DATA_RTOL", "BatchedLevenbergMarquardt"]
 
 RUNNING, CONVERGED, NONFINITE = 0, 1, 2
+#: Step and cost tolerances of frictionfit's fits to noisy measurements: a relative change of
+#: 1e-6 in the cost is far below what their noise lets the data determine. The solver's own
+#: defaults are stricter, for problems that are solved to many digits.
+DATA_RTOL, DATA_FTOL = 1e-8, 1e-6
 LAMBDA_MAX = 1e10
 #: Damping growth after a rejected step. Each step costs a full Jacobian, accepted or
 #: not, so a rejected step is expensive: growing fast wastes fewer (measured on 128
@@ -117,6 +121,12 @@ def _iteration(s: _State, evaluated, ftol: float, xtol: float, gtol: float,
 class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     """Levenberg-Marquardt with Nielsen's damping and Marquardt scaling.
 
+    The default tolerances solve certified reference problems: on the NIST StRD problems
+    it is tested on (both starts, ``max_steps=2000``) every parameter reaches at least 4
+    certified digits, except BoxBOD from start 1 (a plateau that MINPACK also calls
+    converged); with ``max_steps`` too small it says so rather than stopping early. Fits
+    to noisy data may pass looser ones (:data:`DATA_RTOL`, :data:`DATA_FTOL`).
+
     Parameters
     ----------
     rtol : float
@@ -147,9 +157,9 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     [2.0, 0.5]
     """
 
-    rtol: float = 1e-8
+    rtol: float = 1e-10
     atol: float = 1e-10
-    ftol: float = 1e-6
+    ftol: float = 1e-10
     lambda0: float = 1e-3
     norm: Callable = optx.max_norm
     normal: Callable | None = None
