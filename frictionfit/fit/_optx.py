@@ -85,7 +85,8 @@ def _segment_fn(static_solver, fn: Callable, segment: int, max_steps: int, jac: 
     (``live``: holding a problem), then up to ``segment`` steps. ``arrays`` is the
     array part of the solver, ``static_solver`` the rest (the cache key);
     ``compiler_options``: XLA's, as ``(name, value)`` pairs."""
-    options, tags = {"jac": jac}, frozenset()
+    # frictionfit's parameters are logistic coordinates: a vanished column is one on its bound
+    options, tags = {"jac": jac, "bounded": True}, frozenset()
 
     def fn_aux(y, args):
         return fn(y, args), None

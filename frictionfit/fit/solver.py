@@ -46,6 +46,11 @@ RUNNING, CONVERGED, NONFINITE = 0, 1, 2
 #: 1e-6 in the cost is far below what their noise lets the data determine. The solver's own
 #: defaults are stricter, for problems that are solved to many digits.
 DATA_RTOL, DATA_FTOL = 1e-8, 1e-6
+#: A converged point where a parameter's ``J^T J`` diagonal is below this share of the
+#: largest diagonal seen (its column ``1 / eps`` times shorter: it does not act in float64)
+#: is reported ``singular``, unless the problem says that such a parameter sits on a bound
+#: (``options={"bounded": True}``: frictionfit's logistic coordinates).
+VANISHED = float(jnp.finfo(jnp.float64).eps) ** 2
 LAMBDA_MAX = 1e10
 #: Damping growth after a rejected step. Each step costs a full Jacobian, accepted or
 #: not, so a rejected step is expensive: growing fast wastes fewer (measured on 128
@@ -123,9 +128,10 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     The default tolerances solve certified reference problems: on the NIST StRD problems
     it is tested on (both starts, ``max_steps=2000``) every parameter reaches at least 4
-    certified digits, except BoxBOD from start 1 (a plateau that MINPACK also calls
-    converged); with ``max_steps`` too small it says so rather than stopping early. Fits
-    to noisy data may pass looser ones (:data:`DATA_RTOL`, :data:`DATA_FTOL`).
+    certified digits, except BoxBOD from start 1, which ends on a plateau where one
+    parameter no longer acts and says so (``singular``; MINPACK calls it converged); with
+    ``max_steps`` too small it says so rather than stopping early. Fits to noisy data may
+    pass looser ones (:data:`DATA_RTOL`, :data:`DATA_FTOL`).
 
     Parameters
     ----------
@@ -189,6 +195,12 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         s, _ = state
         result = optx.RESULTS.where(s.code == NONFINITE, optx.RESULTS.nonlinear_divergence,
                                     optx.RESULTS.successful)
+        if not options.get("bounded", False):
+            # a parameter whose column has vanished does not act: it ran off to a plateau
+            # (or never acted), so the point is no isolated minimum
+            vanished = jnp.any(jnp.diagonal(s.jtj) <= VANISHED * jnp.max(s.scale))
+            result = optx.RESULTS.where((s.code == CONVERGED) & vanished,
+                                        optx.RESULTS.singular, result)
         return s.code != RUNNING, result
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result
