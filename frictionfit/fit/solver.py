@@ -163,9 +163,9 @@ class BatchedLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     [2.0, 0.5]
     """
 
-    rtol: float = 1e-10
+    rtol: float = 1e-12
     atol: float = 1e-10
-    ftol: float = 1e-10
+    ftol: float = 1e-14
     lambda0: float = 1e-3
     norm: Callable = optx.max_norm
     normal: Callable | None = None
