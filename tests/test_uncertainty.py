@@ -50,6 +50,15 @@ def test_a_short_chain_is_flagged_not_converged_and_still_reported(both):
     assert np.isfinite(mc.rhat[0]["k"]) and "max R-hat" in mc.reason[0]
 
 
+def test_the_verdict_counts_the_rows_and_the_converged_chains(both):
+    lap, mc, _ = both
+    assert lap.verdict() == "Laplace on 2 rows, 1 row skipped (see uq_reason)"
+    worst = max(np.nanmax(list(mc.rhat[i].values())) for i in range(2))
+    assert mc.verdict() == (f"emcee on 2 rows (0 converged; the others' largest R-hat "
+                            f"{worst:.2f}: their intervals are not to be trusted, see "
+                            "uq_reason), 1 row skipped (see uq_reason)")
+
+
 @pytest.mark.slow
 def test_laplace_and_emcee_agree_where_gaussian_and_differ_on_skewed_stiffness(fitted):
     ts, y, fit = fitted
@@ -154,6 +163,7 @@ def test_cli_fit_adds_the_uncertainty_columns(tmp_path):
                                  "--out", str(out),
                                  "--uncertainty", "laplace"])
     assert result.exit_code == 0, result.output
+    assert ": Laplace on 1 row" in result.output
     frame = pd.read_csv(out)
     assert {"k_p16 [N/mm]", "k_p84 [N/mm]", "uq_method"} <= set(frame.columns)
     bad = runner.invoke(app, ["fit", str(tmp_path), "--motions", "--uncertainty", "mcmc"])

@@ -162,8 +162,10 @@ def _fit_motions(files: list[Path], strict: bool, options: dict, posterior: _Pos
             raise typer.Exit(2) from None
         frame = result.to_frame(trials.ids)
         if posterior.method != "none":
-            frame = frame.merge(_posterior(result, trials, posterior).to_frame(trials.ids),
-                                on="trial")
+            post = _posterior(result, trials, posterior)
+            typer.echo(f"posteriors ({posterior.method}) in {post.wall_s:.1f} s: "
+                       f"{post.verdict()}")
+            frame = frame.merge(post.to_frame(trials.ids), on="trial")
         frame.insert(1, "problems", [problems.get(i.split("/")[0], "") for i in trials.ids])
         frames.append(frame)
         wall += result.wall_s
@@ -296,7 +298,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
 
         post = measurement_posterior(result, items, method=uncertainty)
         frame = frame.merge(post.to_frame(ids), on="trial")
-        typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s")
+        typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s: {post.verdict()}")
     _write(frame, output.table, "recording channels", result.wall_s)
     _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:

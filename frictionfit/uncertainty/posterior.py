@@ -64,6 +64,28 @@ class Posterior:
     def n_trials(self) -> int:
         return len(self.model)
 
+    def verdict(self) -> str:
+        """One line for a log: the rows per method, and how many emcee chains converged
+        (with the largest R-hat of those that did not)."""
+        parts = []
+        for method in ("laplace", "emcee", "none"):
+            rows = [i for i, m in enumerate(self.method) if m == method]
+            if not rows:
+                continue
+            count = f"{len(rows)} row{'s' if len(rows) > 1 else ''}"
+            text = {"laplace": f"Laplace on {count}", "emcee": f"emcee on {count}",
+                    "none": f"{count} skipped (see uq_reason)"}[method]
+            if method == "emcee":
+                stuck = [i for i in rows if not self.converged[i]]
+                text += f" ({len(rows) - len(stuck)} converged"
+                if stuck:
+                    worst = max(np.nanmax([*self.rhat[i].values(), np.nan]) for i in stuck)
+                    text += (f"; the others' largest R-hat {worst:.2f}: their intervals are "
+                             "not to be trusted, see uq_reason")
+                text += ")"
+            parts.append(text)
+        return ", ".join(parts)
+
     def samples(self, i: int) -> pd.DataFrame:
         """Post-burn-in, thinned emcee draws of trial ``i`` in physical units."""
         chain = self.chains[i]
