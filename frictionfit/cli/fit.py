@@ -80,7 +80,7 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
-    if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~1 s)
+    if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~0.7 s)
         from frictionfit.uncertainty import METHODS
 
         if uncertainty not in METHODS:
