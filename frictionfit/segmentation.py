@@ -34,7 +34,7 @@ from frictionfit.errors import RecordingError
 from frictionfit.recording import Channel, Recording, kept_per_recording
 
 __all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
-           "segment", "suspect_samples"]
+           "robust_sd", "segment", "suspect_samples"]
 
 _GRID_S = 0.25e-3  # resolution of the change-point grids, s
 #: Exact repeats of a whole row (every channel) this long are a stuck data link.
