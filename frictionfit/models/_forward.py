@@ -473,7 +473,7 @@ def _on_rows(kernel, inputs: list[np.ndarray], consts: tuple, outputs: list[np.n
     if len(parts) == 1:
         kernel(*inputs, *consts, 1, *outputs)
         return
-    list(_threads().map(
+    list(_pool().map(
         lambda i: kernel(*(a[i] for a in inputs), *consts, 1, *(o[i] for o in outputs)),
         [slice(q[0], q[-1] + 1) for q in parts]))
 
@@ -545,12 +545,13 @@ def _lanes(names: tuple[str, ...]) -> np.ndarray:
 
 
 @cache
-def _threads() -> ThreadPoolExecutor:
+def _pool() -> ThreadPoolExecutor:
+    """The NumPy callers' Python threads, one per core (:func:`threads` counts numba's)."""
     return ThreadPoolExecutor(available_cores(), thread_name_prefix="frictionfit-contact")
 
 
 # a forked process has none of its parent's threads: it starts a pool of its own
-os.register_at_fork(after_in_child=_threads.cache_clear)
+os.register_at_fork(after_in_child=_pool.cache_clear)
 
 
 def threaded(kernel):
