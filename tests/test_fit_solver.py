@@ -66,6 +66,14 @@ def _row(data, i):
     return jax.tree_util.tree_map(lambda a: a[i], data)
 
 
+def _exp_rise(b, x):
+    return b[0] * (1 - jnp.exp(-b[1] * x))
+
+
+def _chwirut(b, x):
+    return jnp.exp(-b[0] * x) / (b[1] + b[2] * x)
+
+
 def _gauss(b, x):
     return (b[0] * jnp.exp(-b[1] * x) + b[2] * jnp.exp(-((x - b[3]) ** 2) / b[4] ** 2)
             + b[5] * jnp.exp(-((x - b[6]) ** 2) / b[7] ** 2))
@@ -90,9 +98,9 @@ def _enso(b, x):
 #: Nelson's response is ``log(y)`` and its predictor the pair ``(x1, x2)``.
 NIST = {
     "Bennett5": lambda b, x: b[0] * (b[1] + x) ** (-1 / b[2]),
-    "BoxBOD": lambda b, x: b[0] * (1 - jnp.exp(-b[1] * x)),
-    "Chwirut1": lambda b, x: jnp.exp(-b[0] * x) / (b[1] + b[2] * x),
-    "Chwirut2": lambda b, x: jnp.exp(-b[0] * x) / (b[1] + b[2] * x),
+    "BoxBOD": _exp_rise,
+    "Chwirut1": _chwirut,
+    "Chwirut2": _chwirut,
     "DanWood": lambda b, x: b[0] * x ** b[1],
     "ENSO": _enso,
     "Eckerle4": lambda b, x: (b[0] / b[1]) * jnp.exp(-0.5 * ((x - b[2]) / b[1]) ** 2),
@@ -107,7 +115,7 @@ NIST = {
     "MGH09": lambda b, x: b[0] * (x**2 + x * b[1]) / (x**2 + x * b[2] + b[3]),
     "MGH10": lambda b, x: b[0] * jnp.exp(b[1] / (x + b[2])),
     "MGH17": lambda b, x: b[0] + b[1] * jnp.exp(-x * b[3]) + b[2] * jnp.exp(-x * b[4]),
-    "Misra1a": lambda b, x: b[0] * (1 - jnp.exp(-b[1] * x)),
+    "Misra1a": _exp_rise,
     "Misra1b": lambda b, x: b[0] * (1 - (1 + b[1] * x / 2) ** -2),
     "Misra1c": lambda b, x: b[0] * (1 - (1 + 2 * b[1] * x) ** -0.5),
     "Misra1d": lambda b, x: b[0] * b[1] * x / (1 + b[1] * x),
