@@ -38,6 +38,7 @@ __all__ = [
     "kept_per_recording",
     "read_dataset",
     "read_recording",
+    "recording_paths",
     "validate",
     "write_recording",
 ]
@@ -268,7 +269,8 @@ def validate(rec: Recording) -> list[Problem]:
     Checks: time strictly increasing, runs of NaN/inf, dead (constant) channels,
     the median sample interval against ``sample_rate_hz``, events inside the time
     range, and unknown units. Dropped samples (gaps in ``t``) are reported as kind
-    ``"gap"``; see :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
+    ``"gap"``, commands after the last sample (earlier ones inside) as ``"ends_early"``;
+    see :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
     """
     problems: list[Problem] = []
     if rec.n_samples < 2:
@@ -310,10 +312,19 @@ def validate(rec: Recording) -> list[Problem]:
                if np.all(np.isfinite(rec.t)) and not rec.t[0] <= e.t <= rec.t[-1]]
     if outside:
         e = outside[0]
-        problems.append(Problem(
-            "events_outside", f"{len(outside)} event(s) outside the recording's time range "
-            f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s "
-            "(event times must be seconds from the start of the recording)"))
+        if e.t > rec.t[-1] and len(outside) < len(rec.events):
+            # commands after the last sample, the earlier ones inside: the recording stopped
+            # before its protocol did (an interrupted acquisition); its complete motions count
+            problems.append(Problem(
+                "ends_early", f"{len(outside)} event(s) after the last sample at "
+                f"t={rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s: the "
+                "recording stops before its protocol did (an interrupted acquisition?); what "
+                "it holds is used"))
+        else:
+            problems.append(Problem(
+                "events_outside", f"{len(outside)} event(s) outside the recording's time range "
+                f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at "
+                f"t={e.t:.6g} s (event times must be seconds from the start of the recording)"))
     for j, ch in enumerate(rec.channels):
         x = rec.samples[:, j]
         bad = ~np.isfinite(x)
@@ -344,8 +355,10 @@ def validate(rec: Recording) -> list[Problem]:
 
 #: Problems that are facts of a data link rather than defects: reported, never raised.
 #: Dropped rows and NaN bursts are expected of lab recordings (a serial link loses
-#: samples); segmentation and fitting mask them.
-INFORMATIONAL = frozenset({"gap", "nonfinite"})
+#: samples); segmentation and fitting mask them. A recording that ends before its last
+#: commands (an interrupted acquisition keeps every row it flushed and every command it
+#: sent) is used up to its last complete motion.
+INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early"})
 #: Problems that make every number taken from the recording wrong: commands skip such a
 #: recording, naming it and the problem, unless asked to stop (``--strict``).
 DISQUALIFYING = frozenset({"too_short", "nonfinite_time", "nonmonotonic_time", "sample_rate",
@@ -365,10 +378,12 @@ def _check(rec: Recording, path: PathType, on_error: OnError) -> Recording:
     return rec.with_problems(problems)
 
 
-def _paths(path: PathType) -> tuple[Path, Path]:
+def recording_paths(path: PathType) -> tuple[Path, Path]:
+    """``<name>.csv`` and ``<name>.json`` of the recording at ``path`` (either file, or the
+    name: which may hold dots, ``run_1.5mm``)."""
     p = Path(path)
     stem = p.with_suffix("") if p.suffix in (".csv", ".json") else p
-    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+    return stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".json")
 
 
 def _read_sidecar(json_path: Path) -> dict[str, Any]:
@@ -442,7 +457,7 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
     -------
     Recording
     """
-    csv_path, json_path = _paths(path)
+    csv_path, json_path = recording_paths(path)
     if not csv_path.exists() and not json_path.exists():
         raise RecordingError("no such recording: neither it nor its .json sidecar exists",
                              path=csv_path)
@@ -485,7 +500,7 @@ def write_recording(rec: Recording, path: PathType, *, decimals: int | None = No
     ``decimals=None`` writes every float exactly (round-trips bit for bit);
     ``decimals=3`` writes millinewtons, as the lab's files do.
     """
-    csv_path, json_path = _paths(path)
+    csv_path, json_path = recording_paths(path)
     csv_path.parent.mkdir(parents=True, exist_ok=True)
     fmt = "%.17g" if decimals is None else f"%.{decimals}f"
     frame = pd.DataFrame(rec.samples, columns=list(rec.channel_names))

@@ -85,6 +85,20 @@ def test_an_event_reaches_the_sidecar_before_any_flush(tmp_path):
     assert side["acquisition"] == {"status": "recording"}
 
 
+def test_a_crash_after_a_command_leaves_a_readable_recording(tmp_path):
+    writer = RecordingWriter(tmp_path / "run_1.5mm", [Channel("a_x", "N")], 1000.0)
+    writer.start()
+    writer.append(np.arange(100), np.arange(100.0)[:, None] / 7)
+    writer.add_event(Event(0.05, "move", "p2"))
+    writer.flush({"status": "recording", "rows": 100})
+    writer.add_event(Event(0.2, "move", "p1"))  # sent; the process dies before its rows flush
+    writer._csv.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run_1.5mm.csv", "run_1.5mm.json"]
+    rec = read_recording(tmp_path / "run_1.5mm")  # every flushed row and sent command kept
+    assert rec.n_samples == 100 and len(rec.events) == 2
+    assert [p.kind for p in rec.problems] == ["ends_early"]
+
+
 def test_attached_data_reach_the_sidecar_at_every_write(tmp_path):
     reads = [[0.01, 0.02, 5.0]]
     writer = RecordingWriter(tmp_path / "w", [Channel("a_x", "N")], 1000.0)

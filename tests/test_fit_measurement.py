@@ -300,6 +300,48 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     assert bad.exit_code != 0 and "choose recording or session" in bad.output
 
 
+def test_a_dead_channel_is_named_and_the_others_fitted(tmp_path, simulated):
+    rec = simulated[1]
+    samples = rec.samples.copy()
+    samples[:, rec.channel_names.index("index_x")] = 0.1
+    dead = dataclasses.replace(rec, samples=samples, name="dead")
+    with pytest.raises(ValueError, match=r"dead: channel 'index_x' is constant at 0\.1 N "
+                                         r"\(a dead sensor\?\): no force to fit"):
+        measurement_data(dead, "index_x")
+    write_recording(dead, tmp_path / "dead")
+    out = tmp_path / "fits.csv"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path / "dead.csv"), "--model", "no_peak2",
+                                   "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    assert "skipped dead: channel 'index_x' is constant at 0.1 N" in run.output
+    frame = pd.read_csv(out)
+    assert frame["trial"].tolist() == ["dead/thumb_x"] and frame["status"][0] == "converged"
+    alone = CliRunner().invoke(app, ["fit", str(tmp_path / "dead.csv"), "--channel", "index_x",
+                                     "--out", str(out)])
+    assert alone.exit_code == 2 and "no recording could be fitted" in alone.output
+
+
+def test_a_recording_cut_short_is_fitted_from_what_it_holds(tmp_path, simulated):
+    from frictionfit.datasets.rubbing_lab import load
+    from frictionfit.recording import DatasetWarning
+
+    rec = simulated[1]
+    for name, end_s in (("cut6", 6.5), ("cut3", 3.5)):
+        keep = rec.t < end_s
+        write_recording(dataclasses.replace(rec, t=rec.t[keep], samples=rec.samples[keep],
+                                            name=name), tmp_path / name)
+    out = tmp_path.parent / f"{tmp_path.name}-fits.csv"
+    run = CliRunner().invoke(app, ["fit", str(tmp_path / "cut6.csv"), "--channel", "index_x",
+                                   "--model", "no_peak2", "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    frame = pd.read_csv(out)
+    assert frame["status"].tolist() == ["converged"] and "[ends_early]" in frame["problems"][0]
+    # a folder keeps the recording that holds complete motions, names the one that does not
+    with pytest.warns(DatasetWarning, match=r"skipped cut3: it ends at t=3\.499 s, before a "
+                                             "complete motion after the preparatory one"):
+        assert [r.name for r in load(tmp_path)] == ["cut6"]
+
+
 def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
     monkeypatch.chdir(tmp_path)
     day_one = [r for r in simulated if r.metadata["session"] == 1][:2]

@@ -190,6 +190,35 @@ def test_missing_sidecar_and_data_file(tmp_path, rng):
         read_recording(tmp_path / "typo.csv")
 
 
+def test_a_name_with_dots_keeps_them(tmp_path, rng):
+    rec = _rec(rng, name="run_1.5mm")
+    assert write_recording(rec, tmp_path / "run_1.5mm").name == "run_1.5mm.csv"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run_1.5mm.csv", "run_1.5mm.json"]
+    for path in ("run_1.5mm", "run_1.5mm.csv", "run_1.5mm.json"):
+        assert read_recording(tmp_path / path).name == "run_1.5mm"
+
+
+def test_a_recording_cut_short_is_used_and_named(tmp_path, rng):
+    # an interrupted acquisition: the commands it sent reach past its last flushed row
+    rec = _rec(rng)
+    late = Recording(rec.t, rec.samples, 1000.0, rec.channels,
+                     events=(*rec.events, Event(0.55, "move", "p2"), Event(0.8, "move", "p1")))
+    write_recording(late, tmp_path / "cut")
+    back = read_recording(tmp_path / "cut")
+    assert not back.disqualified
+    assert [str(p) for p in back.problems] == [
+        "2 event(s) after the last sample at t=0.499 s, first move p2 at t=0.55 s: the "
+        "recording stops before its protocol did (an interrupted acquisition?); what it holds "
+        "is used"]
+    # every event outside (another clock) or one before the start still disqualifies
+    for events in ((Event(0.6, "move", "p2"),), (Event(-0.1, "move", "p2"), *rec.events)):
+        write_recording(Recording(rec.t, rec.samples, 1000.0, rec.channels, events=events),
+                        tmp_path / "bad")
+        with pytest.raises(RecordingError, match=r"bad\.csv: \d event\(s\) outside the "
+                                                 r"recording's time range"):
+            read_recording(tmp_path / "bad")
+
+
 def test_gaps_are_reported_not_raised(tmp_path, rng):
     rec = _rec(rng)
     keep = np.r_[0:100, 150:500]

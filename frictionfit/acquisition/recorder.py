@@ -22,7 +22,7 @@ import numpy as np
 
 from frictionfit.acquisition.stream import SensorStream
 from frictionfit.errors import AcquisitionError
-from frictionfit.recording import Channel, Event, Recording
+from frictionfit.recording import Channel, Event, Recording, recording_paths
 
 __all__ = ["RecordingWriter", "record"]
 
@@ -50,9 +50,7 @@ class RecordingWriter:
 
     def __init__(self, path: str | Path, channels: Sequence[Channel], sample_rate_hz: float,
                  metadata: dict[str, Any] | None = None, overwrite: bool = False) -> None:
-        stem = Path(path)
-        stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
-        self.csv_path, self.json_path = stem.with_suffix(".csv"), stem.with_suffix(".json")
+        self.csv_path, self.json_path = recording_paths(path)
         self.channels = tuple(channels)
         self.sample_rate_hz = float(sample_rate_hz)
         self.metadata = dict(metadata or {})
@@ -146,9 +144,7 @@ class RecordingWriter:
 def refuse_existing(path: str | Path) -> None:
     """:class:`~frictionfit.errors.AcquisitionError` if a recording at ``path`` (stem,
     ``.csv`` or ``.json``) already holds data, naming the file and how many rows it has."""
-    stem = Path(path)
-    stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
-    for file in (stem.with_suffix(".csv"), stem.with_suffix(".json")):
+    for file in recording_paths(path):
         if file.exists() and file.stat().st_size > 0:
             rows = ""
             if file.suffix == ".csv":

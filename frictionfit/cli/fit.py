@@ -171,7 +171,7 @@ def _fit_motions(files: list[Path], strict: bool, options: dict, posterior: _Pos
         wall += result.wall_s
         first = first or result
         _plots(result, [(trials.t, y_i) for y_i in trials.y], list(trials.ids), output.plots)
-    _write(pd.concat(frames, ignore_index=True), output.table, "trials", wall)
+    _write(pd.concat(frames, ignore_index=True), output.table, "trial", wall)
     if output.report:
         typer.echo(fit_report(first, 0))
 
@@ -187,15 +187,21 @@ def _plots(result, curves: list[tuple], ids: list[str], folder: Path | None) -> 
         plot_fit(result, i, t, y, folder / (name.replace("/", "__") + ".png"), title=name)
 
 
+def _count(n: int, noun: str) -> str:
+    """``n noun``, the noun plural unless ``n`` is 1."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _write(frame, out: Path, rows: str, wall_s: float) -> None:
-    """Write the results table (.parquet or .csv) and say what it holds."""
+    """Write the results table (.parquet or .csv) and say what it holds (``rows``: what a
+    row is, singular)."""
     if out.suffix == ".parquet":
         frame.to_parquet(out)
     else:
         frame.to_csv(out, index=False)
     counts = frame["status"].value_counts().to_dict()
     models = frame["model"].value_counts().to_dict()
-    typer.echo(f"{len(frame)} {rows} in {wall_s:.1f} s; status {counts}; models {models}; "
+    typer.echo(f"{_count(len(frame), rows)} in {wall_s:.1f} s; status {counts}; models {models}; "
                f"wrote {out}")
 
 
@@ -270,15 +276,30 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
                  else MeasurementModel(law, stroke_mm=stroke_mm).with_priors(priors))
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
+    def fitted_channels(rec):
+        """The channels of ``rec`` that can be fitted; each that cannot is skipped by name
+        (``strict``: the command stops), so one dead sensor does not cost the others."""
+        found = []
+        for ch in channels:
+            try:
+                found.append(measurement_data(rec, ch, stroke_mm=stroke_mm))
+            except ValueError as exc:
+                if strict or len(channels) == 1:
+                    raise
+                typer.echo(f"skipped {exc}", err=True)
+        if not found:
+            raise ValueError(f"{rec.name}: none of the channels {', '.join(channels)} can be "
+                             "fitted")
+        return found
+
     items, problems = [], []
-    for rec, found in _prepared(files, strict, lambda rec: [
-            measurement_data(rec, ch, stroke_mm=stroke_mm) for ch in channels]):
+    for rec, found in _prepared(files, strict, fitted_channels):
         items += found
         problems += ["; ".join(f"[{p.kind}] {p}" for p in rec.problems)] * len(found)
     if not items:
         typer.echo("error: no recording could be fitted from the given paths", err=True)
         raise typer.Exit(2)
-    typer.echo(f"fitting {len(items)} recording channels whole, law={law} ...")
+    typer.echo(f"fitting {_count(len(items), 'recording channel')} whole, law={law} ...")
     try:
         result = fit_measurements(items, model=model, fix=fixed, rig=rig)
     except ValueError as exc:
@@ -299,7 +320,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         post = measurement_posterior(result, items, method=uncertainty)
         frame = frame.merge(post.to_frame(ids), on="trial")
         typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s: {post.verdict()}")
-    _write(frame, output.table, "recording channels", result.wall_s)
+    _write(frame, output.table, "recording channel", result.wall_s)
     _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:
         typer.echo(fit_report(result, 0))

@@ -29,7 +29,7 @@ def plot(
     import matplotlib.pyplot as plt
 
     from frictionfit.errors import FrictionfitError
-    from frictionfit.recording import read_recording
+    from frictionfit.recording import read_recording, recording_paths
     from frictionfit.segmentation import segment
 
     try:
@@ -38,7 +38,7 @@ def plot(
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    out = out or Path(Path(path).with_suffix("").name + ".png")
+    out = out or Path(recording_paths(path)[0].stem + ".png")
     fig, ax = plt.subplots(figsize=(12, 5), constrained_layout=True)
     for m in motions:
         for p in m.phases:

@@ -54,7 +54,7 @@ from frictionfit.models.measurement import (
     to_unconstrained,
 )
 from frictionfit.models.stick_slip import maxwell_branches
-from frictionfit.recording import Recording
+from frictionfit.recording import DEAD_CHANNEL_SPAN, Recording
 from frictionfit.segmentation import checked_grid, moving_average, robust_sd
 
 __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
@@ -185,7 +185,8 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
                      skip_motions: int = 1, stroke_mm: float = 1.0) -> MeasurementData:
     """One channel of ``rec``, faults masked (dropped rows, NaN, spikes, stuck values), as
     block means: ``decimate`` samples per block while the finger moves, ``coarse`` while it
-    holds; the blocks before the out command of motion ``skip_motions`` are not fitted."""
+    holds; the blocks before the out command of motion ``skip_motions`` are not fitted.
+    ValueError, naming the recording and channel, for a channel absent or without signal."""
     if channel not in rec.channel_names:
         raise ValueError(f"{rec.name}: no channel {channel!r}; channels are "
                          f"{list(rec.channel_names)}")
@@ -193,6 +194,10 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     t_grid, grid, spike, stuck = checked_grid(rec)
     j = rec.channel_names.index(channel)
     ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck
+    if not ok.any() or np.ptp(grid[ok, j]) <= DEAD_CHANNEL_SPAN:
+        raise ValueError(f"{rec.name}: channel {channel!r} " + (
+            f"is constant at {grid[ok, j][0]:.6g} {rec.channels[j].unit} (a dead sensor?): "
+            "no force to fit" if ok.any() else "has no usable sample"))
     y = np.where(ok, grid[:, j], 0.0)
     direction, guess = _guess(t_grid, np.where(ok, y, np.nan), ok, commands, signs, stroke_mm)
     first = 2 * skip_motions
