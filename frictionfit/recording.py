@@ -35,6 +35,7 @@ __all__ = [
     "Event",
     "Problem",
     "Recording",
+    "check_newtons",
     "kept_per_recording",
     "read_dataset",
     "read_recording",
@@ -44,6 +45,9 @@ __all__ = [
 ]
 
 KNOWN_UNITS = frozenset({"N", "mN", "kN", "N m", "counts", "mm", "m", "kPa", "Pa", "V", "1", ""})
+#: Force units in newtons: frictionfit computes forces in N, and reads them so.
+NEWTONS_PER = {"N": 1.0, "mN": 1e-3, "kN": 1e3}
+
 REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
 #: Relative deviation of the median sample interval from 1/sample_rate_hz that is flagged.
 RATE_TOLERANCE = 0.02
@@ -237,6 +241,16 @@ class Recording:
         except (KeyError, TypeError, ValueError) as exc:
             raise RecordingError(f"malformed {MOTOR_POSITIONS!r} in sidecar: {exc!r}",
                                  path=self.name) from None
+
+    def in_newtons(self) -> Recording:
+        """This recording with its force channels in N (those in mN or kN scaled; the
+        others, and a recording already in N, as they are)."""
+        scale = np.array([NEWTONS_PER.get(c.unit, 1.0) for c in self.channels])
+        if np.all(scale == 1.0):
+            return self
+        channels = tuple(Channel(c.name, "N") if c.unit in NEWTONS_PER else c
+                         for c in self.channels)
+        return replace(self, samples=self.samples * scale, channels=channels)
 
     @property
     def disqualified(self) -> tuple[Problem, ...]:
@@ -441,8 +455,21 @@ def _why_unparsable(csv_path: Path, exc: Exception) -> str:
     return f"cannot parse CSV: {exc}"
 
 
+def check_newtons(name: str, channels: Sequence[Channel],
+                  names: Sequence[str] | None = None) -> None:
+    """RecordingError naming recording ``name`` and the first of its ``channels`` (those
+    ``names``, default all) not in N: a fit's parameters are forces in N."""
+    for c in channels:
+        if c.unit != "N" and (names is None or c.name in names):
+            raise RecordingError(
+                f"unit {c.unit!r}, not N: a fit's parameters are forces in N (channels in mN or "
+                "kN are read in N; raw counts need the sensor's sensitivity: frictionfit "
+                "acquire --sensitivity)", path=name, channel=c.name)
+
+
 def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
-    """Read ``<name>.csv`` + ``<name>.json`` (either path, or the stem) and validate it.
+    """Read ``<name>.csv`` + ``<name>.json`` (either path, or the stem) and validate it;
+    force channels in mN or kN are read in N (:meth:`Recording.in_newtons`).
 
     Parameters
     ----------
@@ -491,7 +518,7 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
         name=csv_path.stem,
         extra={k: v for k, v in side.items() if k not in known},
     )
-    return _check(rec, csv_path, on_error)
+    return _check(rec.in_newtons(), csv_path, on_error)
 
 
 def write_recording(rec: Recording, path: PathType, *, decimals: int | None = None) -> Path:

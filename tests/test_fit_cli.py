@@ -113,6 +113,32 @@ def test_fit_writes_one_row_per_motion_and_channel(tmp_path):
     assert {"k [N/mm]", "status"} <= set(frame.columns)
 
 
+def test_millinewtons_fit_as_newtons_and_raw_counts_are_refused_by_name(tmp_path):
+    newtons, milli, raw = (_measurement(tmp_path / d) for d in ("n", "mn", "raw"))
+    for path, unit, scale in ((milli, "mN", 1e3), (raw, "counts", 1.0)):
+        side = json.loads(path.with_suffix(".json").read_text())
+        for ch in side["channels"]:
+            ch["unit"] = unit
+        path.with_suffix(".json").write_text(json.dumps(side))
+        frame = pd.read_csv(path)
+        frame[["index_x", "thumb_x"]] *= scale
+        frame.to_csv(path, index=False, float_format="%.17g")
+    args = ["--motions", "--model", "elastic_plastic", "--out"]
+    fits = []
+    for path in (newtons, milli):
+        out = path.with_suffix(".fits.csv")
+        result = CliRunner().invoke(app, ["fit", str(path), *args, str(out)])
+        assert result.exit_code == 0, result.output
+        fits.append(pd.read_csv(out)["f_kin [N]"].to_numpy())
+    np.testing.assert_allclose(fits[1], fits[0], rtol=1e-6)
+    for whole in ([], ["--motions"]):
+        result = CliRunner().invoke(app, ["fit", str(raw), *whole, "--out",
+                                          str(tmp_path / "raw.fits.csv")])
+        assert result.exit_code == 2
+        assert "skipped m1: channel 'index_x': unit 'counts', not N: a fit's parameters are " \
+            "forces in N" in result.output
+
+
 def test_fit_with_nothing_to_fit_exits_2(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions"])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output

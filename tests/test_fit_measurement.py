@@ -321,6 +321,18 @@ def test_a_dead_channel_is_named_and_the_others_fitted(tmp_path, simulated):
     assert alone.exit_code == 2 and "no recording could be fitted" in alone.output
 
 
+def test_a_clipped_channel_is_fitted_without_its_clipped_runs_and_says_so(simulated):
+    rec = simulated[1]
+    samples = rec.samples.copy()
+    j = rec.channel_names.index("index_x")
+    samples[:, j] = np.minimum(samples[:, j], np.nanquantile(samples[:, j], 0.95))
+    item = measurement_data(dataclasses.replace(rec, samples=samples), "index_x")
+    assert item.clipped > 100
+    assert measurement_data(rec, "index_x").clipped == 0
+    result = fit_measurements([item], model="no_peak2")
+    assert Status(result.status[0]) == Status.SATURATED
+
+
 def test_a_recording_cut_short_is_fitted_from_what_it_holds(tmp_path, simulated):
     from frictionfit.datasets.rubbing_lab import load
     from frictionfit.recording import DatasetWarning

@@ -10,6 +10,7 @@ from frictionfit.recording import (
     DatasetWarning,
     Event,
     Recording,
+    check_newtons,
     read_dataset,
     read_recording,
     write_recording,
@@ -245,13 +246,28 @@ def test_a_folder_skips_each_unusable_file_by_name_and_strict_stops(tmp_path, rn
         read_dataset(tmp_path, strict=True)
 
 
+def test_forces_in_millinewtons_are_read_in_newtons(tmp_path, rng):
+    rec = _rec(rng)
+    milli = Recording(rec.t, rec.samples * 1e3, 1000.0,
+                      tuple(type(c)(c.name, "mN") for c in rec.channels))
+    write_recording(milli, tmp_path / "m")
+    back = read_recording(tmp_path / "m")
+    assert {c.unit for c in back.channels} == {"N"}
+    np.testing.assert_allclose(back.samples, rec.samples, rtol=1e-15)
+    with pytest.raises(RecordingError, match=r"m: channel 'thumb_x': unit 'mN', not N: a "
+                                             r"fit's parameters are forces in N"):
+        check_newtons("m", milli.channels)
+    check_newtons("m", back.channels)
+
+
 def test_dataset_units_must_agree(tmp_path, rng):
     write_recording(_rec(rng, name="a"), tmp_path / "a")
     other = _rec(rng, name="b")
     other = Recording(other.t, other.samples, 1000.0,
-                      tuple(type(c)(c.name, "mN") for c in other.channels))
+                      tuple(type(c)(c.name, "counts") for c in other.channels))
     write_recording(other, tmp_path / "b")
-    words = r"b\.csv: channels \['thumb_x \[mN\]'.* differ from \['thumb_x \[N\]'.*units mis"
+    words = (r"b\.csv: channels \['thumb_x \[counts\]'.* differ from \['thumb_x \[N\]'.*units "
+             r"mis")
     with pytest.raises(DatasetError, match=words):
         read_dataset(tmp_path, strict=True)
     with pytest.warns(DatasetWarning, match="skipped .*" + words):

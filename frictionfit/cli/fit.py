@@ -332,12 +332,17 @@ def _trials(files: list[Path], strict: bool):
     used. A recording that cannot be read or segmented, or whose problems make its numbers
     wrong, is skipped by name (``strict``: the command stops)."""
     from frictionfit.fit import Trials
+    from frictionfit.recording import check_newtons
     from frictionfit.segmentation import segment
+
+    def motions_in_newtons(rec):
+        check_newtons(rec.name, rec.channels)  # per-motion fits take every channel
+        return segment(rec)
 
     by_interval: dict[float, list] = {}
     problems: dict[str, str] = {}
     used = 0
-    for rec, motions in _prepared(files, strict, segment):
+    for rec, motions in _prepared(files, strict, motions_in_newtons):
         used += 1
         problems[rec.name] = "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
         for m in motions:

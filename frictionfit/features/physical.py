@@ -205,7 +205,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 27  # 27: the contact loop's tangents in one pass (rounding moves fits)
+    _version = 28  # 28: a dead channel not fitted, a clipped one fitted without its clips
     _view_params = ("with_stderr",)  # the stderrs are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
     #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the

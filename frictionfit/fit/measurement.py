@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 
 from frictionfit._system import available_cores
 from frictionfit.errors import Status
+from frictionfit.fit._guess import saturated_samples
 from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
 from frictionfit.fit._numerics import map_chunks, scaled_condition
 from frictionfit.fit._optx import solve_pooled
@@ -54,7 +55,7 @@ from frictionfit.models.measurement import (
     to_unconstrained,
 )
 from frictionfit.models.stick_slip import maxwell_branches
-from frictionfit.recording import DEAD_CHANNEL_SPAN, Recording
+from frictionfit.recording import DEAD_CHANNEL_SPAN, Recording, check_newtons
 from frictionfit.segmentation import checked_grid, moving_average, robust_sd
 
 __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_data",
@@ -78,7 +79,9 @@ class MeasurementData:
     movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored as ones);
     ``motor``: the movements as the motor reported them
     (:func:`~frictionfit.fit.motor.motor_timing`; ``None`` when the recording has no
-    position reads), which then set ``commands``, ``stretch`` and the rig's starting values.
+    position reads), which then set ``commands``, ``stretch`` and the rig's starting values;
+    ``clipped``: how many samples sat in a run at the channel's extreme (a saturated sensor:
+    left out, and the fit's status says so).
     """
 
     name: str
@@ -94,6 +97,7 @@ class MeasurementData:
     session: object = None
     stretch: np.ndarray | None = None
     motor: MotorTiming | None = None
+    clipped: int = 0
 
     def __post_init__(self):
         if self.stretch is None:  # frozen: set once, so every reader sees an array
@@ -186,14 +190,17 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     """One channel of ``rec``, faults masked (dropped rows, NaN, spikes, stuck values), as
     block means: ``decimate`` samples per block while the finger moves, ``coarse`` while it
     holds; the blocks before the out command of motion ``skip_motions`` are not fitted.
-    ValueError, naming the recording and channel, for a channel absent or without signal."""
+    ValueError, naming the recording and channel, for a channel absent, not in N or without
+    signal."""
     if channel not in rec.channel_names:
         raise ValueError(f"{rec.name}: no channel {channel!r}; channels are "
                          f"{list(rec.channel_names)}")
+    check_newtons(rec.name, rec.channels, [channel])
     commands, signs = _move_signs(rec)
     t_grid, grid, spike, stuck = checked_grid(rec)
     j = rec.channel_names.index(channel)
-    ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck
+    clipped = saturated_samples(grid[None, :, j])[0]
+    ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck & ~clipped
     if not ok.any() or np.ptp(grid[ok, j]) <= DEAD_CHANNEL_SPAN:
         raise ValueError(f"{rec.name}: channel {channel!r} " + (
             f"is constant at {grid[ok, j][0]:.6g} {rec.channels[j].unit} (a dead sensor?): "
@@ -207,7 +214,8 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
                                     _block_edges(t_grid, commands[first:], decimate, coarse))
     noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
     data = MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
-                           commands, signs, direction, guess, rec.metadata.get("session"))
+                           commands, signs, direction, guess, rec.metadata.get("session"),
+                           clipped=int(clipped.sum()))
     motor = motor_timing(rec, commands, signs)
     return data if motor is None else _driven_by_motor(data, motor)
 
@@ -887,7 +895,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
                                            for n in names])
                      for i in range(len(items))])
     status = np.array([status_of(len(free), code[i] == Status.CONVERGED, u[i], stats["chi2"][i],
-                                 cond[i], mask[i]) for i in range(len(items))])
+                                 cond[i], mask[i], saturated=items[i].clipped > 0)
+                       for i in range(len(items))])
     return FitResult(
         model=[model.name] * len(items), values=param_table(stats["values"]),
         stderr=param_table(stats["stderr"]),

@@ -12,6 +12,7 @@ import numpy as np
 from frictionfit.errors import FitError
 from frictionfit.fit._guess import direction_of
 from frictionfit.fit.result import FitResult
+from frictionfit.recording import check_newtons
 
 __all__ = ["Trials", "as_trials"]
 
@@ -103,6 +104,7 @@ class Trials(eqx.Module):
                 if name not in names:
                     raise FitError(f"motion {m.index} of {m.recording} has no channel "
                                    f"{name!r}; channels are {names}")
+                check_newtons(m.recording, m.channels, [name])
                 y = np.full(t.size, np.nan)
                 y[:n] = m.samples[:n, names.index(name)]
                 ys.append(y)
