@@ -118,7 +118,8 @@ class Recording:
     channels : tuple of Channel
         Name and unit of each column of ``samples``.
     events : tuple of Event
-        Commands with their times (e.g. the motor's ``move`` commands).
+        Commands with their times (e.g. the motor's ``move`` commands), kept in time
+        order.
     metadata : dict
         ``label`` (the class to learn), ``material``, ``layers``, ``session``,
         ``trial`` and any other free key/values.
@@ -169,7 +170,8 @@ class Recording:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "samples", samples)
         object.__setattr__(self, "channels", tuple(self.channels))
-        object.__setattr__(self, "events", tuple(self.events))
+        # in time order whatever order the sidecar lists them in (a stable sort)
+        object.__setattr__(self, "events", tuple(sorted(self.events, key=lambda e: e.t)))
         object.__setattr__(self, "problems", tuple(self.problems))
 
     @classmethod

@@ -40,6 +40,15 @@ def test_round_trip_is_exact(tmp_path, rng):
     assert back.extra == rec.extra
 
 
+def test_events_listed_out_of_order_are_read_in_time_order(tmp_path, rng):
+    rec = _rec(rng)
+    write_recording(rec, tmp_path / "r")
+    side = json.loads((tmp_path / "r.json").read_text())
+    side["events"].reverse()
+    (tmp_path / "r.json").write_text(json.dumps(side))
+    assert read_recording(tmp_path / "r").events == rec.events
+
+
 def test_motor_positions_round_trip_at_their_own_times(tmp_path, rng):
     block = {"columns": [{"name": "t_request", "unit": "s"}, {"name": "t_reply", "unit": "s"},
                          {"name": "position", "unit": "counts"}],
