@@ -220,3 +220,18 @@ def test_stratified_calibration_falls_back_to_classes_and_rejects_unknown_splits
     with pytest.raises(ValueError, match="unknown split 'days'"):
         CalibratedPipeline(_pipeline(), split="days").fit(overlapping, np.array(
             [r.metadata["label"] for r in overlapping]))
+
+
+def test_too_few_recordings_of_a_class_are_left_uncalibrated_and_said(overlapping):
+    from frictionfit.calibration import MIN_PER_CLASS, CalibrationWarning
+
+    # fewer than MIN_PER_CLASS of a class: its inner pipelines would learn it from one
+    # recording, and the calibrator would flatten every call to uniform
+    few = [r for r in overlapping if r.metadata["session"] == 1
+           and int(r.name.rsplit("_", 1)[1]) < MIN_PER_CLASS - 1]
+    y = np.array([r.metadata["label"] for r in few])
+    with pytest.warns(CalibrationWarning, match=f"needs at least {MIN_PER_CLASS} recordings "
+                                                 "of every class"):
+        model = CalibratedPipeline(_pipeline(), n_draws=0).fit(few, y)
+    assert model.calibrator_ is None
+    np.testing.assert_allclose(model.predict_proba(few).sum(axis=1), 1.0)
