@@ -47,7 +47,6 @@ __all__ = [
 KNOWN_UNITS = frozenset({"N", "mN", "kN", "N m", "counts", "mm", "m", "kPa", "Pa", "V", "1", ""})
 #: Force units in newtons: frictionfit computes forces in N, and reads them so.
 NEWTONS_PER = {"N": 1.0, "mN": 1e-3, "kN": 1e3}
-
 REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
 #: Relative deviation of the median sample interval from 1/sample_rate_hz that is flagged.
 RATE_TOLERANCE = 0.02
@@ -330,7 +329,7 @@ def validate(rec: Recording) -> list[Problem]:
         e = outside[0]
         if e.t > rec.t[-1] and len(outside) < len(rec.events):
             # commands after the last sample, the earlier ones inside: the recording stopped
-            # before its protocol did (an interrupted acquisition); its complete motions count
+            # before its protocol did (an interrupted acquisition); what it holds is used
             problems.append(Problem(
                 "ends_early", f"{len(outside)} event(s) after the last sample at "
                 f"t={rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s: the "
@@ -373,7 +372,7 @@ def validate(rec: Recording) -> list[Problem]:
 #: Dropped rows and NaN bursts are expected of lab recordings (a serial link loses
 #: samples); segmentation and fitting mask them. A recording that ends before its last
 #: commands (an interrupted acquisition keeps every row it flushed and every command it
-#: sent) is used up to its last complete motion.
+#: sent) is used as far as it goes.
 INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early"})
 #: Problems that make every number taken from the recording wrong: commands skip such a
 #: recording, naming it and the problem, unless asked to stop (``--strict``).

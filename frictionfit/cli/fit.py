@@ -276,6 +276,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
                  else MeasurementModel(law, stroke_mm=stroke_mm).with_priors(priors))
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
+
     def fitted_channels(rec):
         """The channels of ``rec`` that can be fitted; each that cannot is skipped by name
         (``strict``: the command stops), so one dead sensor does not cost the others."""
