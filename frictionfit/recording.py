@@ -437,7 +437,7 @@ def _why_unparsable(csv_path: Path, exc: Exception) -> str:
     hint at the separator; else pandas' own words."""
     try:
         head = csv_path.read_text(errors="replace").splitlines()[:1]
-        raw = pd.read_csv(csv_path, dtype=str, keep_default_na=False)
+        raw = pd.read_csv(csv_path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (ValueError, OSError):
         return f"cannot parse CSV: {exc}"
     if head and "," not in head[0]:
@@ -493,7 +493,8 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
     if not csv_path.exists():
         raise RecordingError("data file is missing", path=csv_path)
     try:
-        frame = pd.read_csv(csv_path, dtype=np.float64, na_values=["nan", "NaN", ""])
+        frame = pd.read_csv(csv_path, dtype=np.float64, na_values=["nan", "NaN", ""],
+                            skipinitialspace=True)  # "t, thumb_x, ..." as well
     except ValueError as exc:  # pandas' parser errors are ValueErrors too
         raise RecordingError(_why_unparsable(csv_path, exc), path=csv_path) from None
     names = [c["name"] for c in side["channels"]]

@@ -200,6 +200,16 @@ def test_missing_sidecar_and_data_file(tmp_path, rng):
         read_recording(tmp_path / "typo.csv")
 
 
+def test_spaces_after_the_commas_are_read(tmp_path, rng):
+    rec = _rec(rng)
+    write_recording(rec, tmp_path / "r")
+    csv = tmp_path / "r.csv"
+    csv.write_text(csv.read_text().replace(",", ", "))
+    back = read_recording(csv)
+    assert back.channel_names == rec.channel_names
+    np.testing.assert_array_equal(back.samples, rec.samples)
+
+
 def test_a_name_with_dots_keeps_them(tmp_path, rng):
     rec = _rec(rng, name="run_1.5mm")
     assert write_recording(rec, tmp_path / "run_1.5mm").name == "run_1.5mm.csv"
