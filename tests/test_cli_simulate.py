@@ -56,7 +56,7 @@ def test_plot_writes_a_png(simulated, tmp_path):
         result = runner.invoke(app, ["plot", str(out / "s1_paper-1_01.csv"), "--out", str(png),
                                      *extra])
         assert result.exit_code == 0, result.output
-        assert f"{shaded} motions shaded" in result.output
+        assert f"{shaded} motion(s) shaded" in result.output
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -59,7 +59,7 @@ def plot(
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
-    typer.echo(f"wrote {out} ({len(motions)} motions shaded, {len(rec.problems)} problem(s))")
+    typer.echo(f"wrote {out} ({len(motions)} motion(s) shaded, {len(rec.problems)} problem(s))")
 
 
 def missing_spans(rec) -> list[tuple[float, float]]:
