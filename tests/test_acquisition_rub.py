@@ -229,3 +229,39 @@ def test_refused_command_is_an_event_and_an_error(tmp_path):
     assert "goal position 5000 is outside the servo's limits 0..4095" in result.output
     assert "the recording is kept" in result.output
     assert [(e.kind, e.target) for e in rec.events] == [("protocol_error", "p2")]
+
+
+def test_a_rub_killed_just_after_a_command_reads_with_every_command_it_sent(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "rub"
+    with FakeOptoForce(tmp_path / "tty"):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", "import sys; from frictionfit.cli import main; main()",
+             "rub", "--sensor", str(tmp_path / "tty"), "--actuator", "sim", "--p1", "0",
+             "--p2", "100", "--motions", "5", "--dwell", "1.0", "--out", str(out), "--quiet"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and len(_sent(out)) < 4:
+                time.sleep(0.005)
+        finally:  # the 4th command is in the sidecar; its rows are not all flushed yet
+            proc.send_signal(signal.SIGKILL)
+            proc.communicate(timeout=30)
+    rec = read_recording(out)  # nothing disqualifies it: every flushed row, every command
+    assert [e.target for e in rec.events] == ["p2", "p1", "p2", "p1"][:len(rec.events)]
+    assert len(rec.events) >= 4 and rec.extra["acquisition"]["status"] == "recording"
+    late = [e for e in rec.events if e.t > rec.t[-1]]
+    assert [p.kind for p in rec.problems if p.kind == "ends_early"] == (["ends_early"] if late
+                                                                         else [])
+
+
+def _sent(out):
+    """The commands in ``out``'s sidecar so far (none while it is being replaced)."""
+    try:
+        return json.loads(out.with_name(out.name + ".json").read_text()).get("events", [])
+    except (OSError, ValueError):
+        return []
