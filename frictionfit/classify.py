@@ -48,6 +48,7 @@ __all__ = [
     "PROTOCOLS",
     "Evaluation",
     "SessionNormalised",
+    "classes_of",
     "evaluate",
     "evaluate_incremental",
     "labels_of",
@@ -298,6 +299,15 @@ def labels_of(recordings: Sequence[Recording], key: str = "label") -> np.ndarray
     return np.asarray([r.metadata[key] for r in recordings])
 
 
+def classes_of(recordings: Sequence[Recording], key: str = "label") -> np.ndarray:
+    """The classes to learn (:func:`labels_of`); DatasetError unless at least two differ."""
+    y = labels_of(recordings, key)
+    if np.unique(y.astype(str)).size < 2:
+        raise DatasetError(f"a classifier needs at least two classes of {key!r}; all "
+                           f"{len(y)} recordings are {str(y[0])!r}")
+    return y
+
+
 def splits(recordings: Sequence[Recording], protocol: str, y: np.ndarray, *,
            seed: int = 0, n_splits: int = 5) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """``(train_index, test_index)`` pairs of a protocol (see :data:`PROTOCOLS`)."""
@@ -420,7 +430,7 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
     >>> round(ev.accuracy, 3)  # doctest: +SKIP
     """
     recordings = list(recordings)
-    y = labels_of(recordings, target)
+    y = classes_of(recordings, target)
     template = pipeline if pipeline is not None else make_pipeline(
         features, classifier, seed=seed, project=projection_for(recordings, project),
         probability=calibrate)

@@ -139,6 +139,17 @@ def test_errors_name_the_problem(folders, tmp_path):
     assert result.exit_code == 1 and "no metadata 'person'" in result.output
     result = runner.invoke(app, ["train", "--dataset", "nowhere:x"])
     assert result.exit_code == 1 and "unknown dataset kind 'nowhere'" in result.output
+    one = tmp_path / "one"
+    one.mkdir()
+    for src in sorted(folders[0].glob("*.csv"))[:4]:  # the first class only
+        for path in (src, src.with_suffix(".json")):
+            (one / path.name).write_bytes(path.read_bytes())
+    for command in ("train", "evaluate"):
+        result = runner.invoke(app, [command, "--dataset", f"recordings:{one}", "--features",
+                                     "handcrafted", "--out", str(tmp_path / f"{command}.out")])
+        assert result.exit_code == 1, result.output
+        assert "a classifier needs at least two classes of 'label'; all 4 recordings are" \
+            in result.output
 
 
 class _Boom:

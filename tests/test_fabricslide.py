@@ -93,11 +93,13 @@ def test_repeated_last_row_is_dropped_and_reported(tmp_path):
         (lambda lines: [lines[0].replace("channel16", "chan16"), *lines[1:]],
          r"missing column\(s\) \['channel16'\]"),
         (lambda lines: [*lines[:5], _replace_field(lines[5], 1, "x"), *lines[6:]],
-         r"channel 'proximity1': non-numeric or missing value 'x' at data row 5"),
+         r"channel 'proximity1': non-numeric value 'x' at data row 5"),
+        (lambda lines: [*lines[:20], lines[20][: len(lines[20]) // 2]],
+         r"channel 'channel\d+': missing value \(a row cut short\?\) at data row 20"),
         (lambda lines: [*lines[:3], lines[4], lines[3], *lines[5:]],
          r"channel 'timestamp': timestamp not increasing at data row 4 \(5084 ms then 5056 ms\)"),
         (lambda lines: lines[:10], r"only 9 rows"),
-        (lambda lines: [], r"cannot read CSV"),
+        (lambda lines: [], r"the file is empty"),
     ],
 )
 def test_malformed_files_are_rejected_naming_file_and_problem(tmp_path, edit, message):

@@ -103,7 +103,7 @@ def train(
     The model is saved with skops (loading it runs no code), with what it was trained
     on: feature set, dataset kind, channels and classes."""
     from frictionfit.calibration import CalibratedPipeline
-    from frictionfit.classify import labels_of, make_pipeline, projection_for
+    from frictionfit.classify import classes_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
     from frictionfit.model_file import save_model
 
@@ -111,7 +111,7 @@ def train(
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
-        y = labels_of(recordings)
+        y = classes_of(recordings)
         pipeline = make_pipeline(features, classifier, seed=seed,
                                  project=projection_for(recordings, _projection(project)),
                                  probability=calibrate)

@@ -86,6 +86,8 @@ def parse_name(path: PathType) -> dict[str, object]:
 def _read_table(path: Path) -> pd.DataFrame:
     try:
         df = pd.read_csv(path, skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        raise RecordingError("the file is empty", path=path) from None
     except (OSError, ValueError, pd.errors.ParserError) as exc:
         raise RecordingError(f"cannot read CSV: {exc}", path=path) from None
     missing = [c for c in COLUMNS if c not in df.columns]
@@ -99,10 +101,10 @@ def _read_table(path: Path) -> pd.DataFrame:
         bad = values.isna() | ~np.isfinite(values)
         if bad.any():
             row = int(np.argmax(bad.to_numpy()))
-            raise RecordingError(
-                f"non-numeric or missing value {df[col].iloc[row]!r} at data row {row + 1}",
-                path=path, channel=col,
-            )
+            cell = df[col].iloc[row]
+            what = (f"non-numeric value {cell.strip()!r}" if isinstance(cell, str) and cell.strip()
+                    else "missing value (a row cut short?)")
+            raise RecordingError(f"{what} at data row {row + 1}", path=path, channel=col)
         df[col] = values.astype(np.float64)
     if len(df) < MIN_ROWS:
         raise RecordingError(f"only {len(df)} rows; a slide has at least {MIN_ROWS}", path=path)
