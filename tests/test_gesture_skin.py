@@ -95,8 +95,10 @@ def test_malformed_npz_names_the_file(tmp_path, frames, keys, match):
             load(tmp_path)
 
 
-def test_a_file_that_is_not_npz(tmp_path):
-    (tmp_path / "junk.npz").write_text("not a zip")
+@pytest.mark.parametrize("content", ["not a zip", ""])
+def test_a_file_that_is_not_npz(tmp_path, content):
+    # an empty file raised EOFError, which the command line took for Ctrl-D ("Aborted!")
+    (tmp_path / "junk.npz").write_text(content)
     with pytest.raises(RecordingError, match=r"junk\.npz: cannot read npz"):
         load(tmp_path, strict=True)
 

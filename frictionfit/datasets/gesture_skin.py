@@ -159,10 +159,12 @@ def _read_npz(path: Path) -> Recording:
                 if key in data:
                     metadata[key] = _scalar(data, key, path)
             unit = str(_scalar(data, "unit", path)) if "unit" in data else "kPa"
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         if isinstance(exc, RecordingError):
             raise
-        raise RecordingError(f"cannot read npz: {exc}", path=path) from None
+        # an empty file raises EOFError, which a command line would take for Ctrl-D
+        raise RecordingError(f"cannot read npz: {exc or type(exc).__name__}",
+                             path=path) from None
     if not np.isfinite(rate) or rate <= 0:
         raise RecordingError(f"rate_hz must be a positive number, got {rate}", path=path)
     if unit not in GESTURE_UNITS:
