@@ -77,6 +77,12 @@ def test_features_table_has_recording_label_groups_then_features(folders, tmp_pa
     table = pd.read_csv(out)
     assert list(table.columns[:3]) == ["recording", "label", "session"]
     assert table.shape == (3, 3 + 3 + 80)  # + layers, material, problems; 80 FFT bins
+    parquet = out.with_suffix(".parquet")
+    result = runner.invoke(app, ["features", "--dataset", f"recordings:{folders[1]}",
+                                 "--features", "fftbins", "--out", str(parquet)])
+    assert result.exit_code == 0, result.output
+    pd.testing.assert_frame_equal(pd.read_parquet(parquet), table.fillna({"problems": ""}),
+                                  check_dtype=False)
 
 
 def test_default_features_follow_the_dataset_kind(folders, tmp_path):

@@ -59,6 +59,14 @@ def problems_of(rec) -> str:
     return "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
 
 
+def write_table(frame, out: Path) -> None:
+    """``frame`` written to ``out``: Parquet for ``.parquet``, else CSV (no index)."""
+    if out.suffix == ".parquet":
+        frame.to_parquet(out, index=False)
+    else:
+        frame.to_csv(out, index=False)
+
+
 def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = ()) -> None:
     """Refuse an output path that cannot be written, before any work is done."""
     if path is None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of
+from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of, write_table
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
@@ -61,7 +61,7 @@ def _groups(rec) -> dict:
 def features(
     dataset: str = typer.Option(..., help=DATASET_HELP),
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
-    out: Path = typer.Option(Path("features.csv"), help="Output table (.csv)."),
+    out: Path = typer.Option(Path("features.csv"), help="Output table (.csv or .parquet)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
 ) -> None:
     """Write one row per recording: recording, label, group columns, then the features."""
@@ -69,7 +69,7 @@ def features(
 
     from frictionfit.features import make_features
 
-    check_writable(out, "--out", (".csv",))
+    check_writable(out, "--out", (".csv", ".parquet"))
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
@@ -81,7 +81,7 @@ def features(
                           "problems": problems_of(r)} for r in recordings])
     table = pd.concat([meta, pd.DataFrame(x, columns=transformer.get_feature_names_out())],
                       axis=1)
-    table.to_csv(out, index=False)
+    write_table(table, out)
     typer.echo(f"{len(table)} recordings x {x.shape[1]} features -> {out}")
 
 

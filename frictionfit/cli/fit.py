@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable
+from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable, write_table
 
 #: Options that only per-motion fits (``--motions``) take.
 _PER_MOTION = ("--chains", "--tie", "--scheduler", "--n-starts", "--solver")
@@ -195,10 +195,7 @@ def _count(n: int, noun: str) -> str:
 def _write(frame, out: Path, rows: str, wall_s: float) -> None:
     """Write the results table (.parquet or .csv) and say what it holds (``rows``: what a
     row is, singular)."""
-    if out.suffix == ".parquet":
-        frame.to_parquet(out)
-    else:
-        frame.to_csv(out, index=False)
+    write_table(frame, out)
     counts = frame["status"].value_counts().to_dict()
     models = frame["model"].value_counts().to_dict()
     typer.echo(f"{_count(len(frame), rows)} in {wall_s:.1f} s; status {counts}; models {models}; "
