@@ -485,6 +485,9 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
     -------
     Recording
     """
+    if Path(path).suffix not in (".csv", ".json") and Path(path).is_file():
+        raise RecordingError("not a recording: frictionfit reads <name>.csv with its "
+                             "<name>.json sidecar", path=path)
     csv_path, json_path = recording_paths(path)
     if not csv_path.exists() and not json_path.exists():
         raise RecordingError("no such recording: neither it nor its .json sidecar exists",

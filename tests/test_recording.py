@@ -198,6 +198,10 @@ def test_missing_sidecar_and_data_file(tmp_path, rng):
         read_recording(tmp_path / "q")
     with pytest.raises(RecordingError, match=r"typo\.csv: no such recording"):
         read_recording(tmp_path / "typo.csv")
+    (tmp_path / "fits.parquet").write_bytes(b"PAR1")
+    with pytest.raises(RecordingError, match=r"fits\.parquet: not a recording: frictionfit "
+                                             r"reads <name>\.csv with its <name>\.json"):
+        read_recording(tmp_path / "fits.parquet")
 
 
 def test_spaces_after_the_commas_are_read(tmp_path, rng):
