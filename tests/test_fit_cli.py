@@ -77,6 +77,14 @@ def test_an_unwritable_output_is_refused_before_fitting(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(path), "--out", str(tmp_path / "nodir/x.csv")])
     assert result.exit_code == 2 and "folder" in result.output and "does not exist" in \
         result.output and "fitting" not in result.output
+    out = str(tmp_path / "x.csv")
+    for option, value, words in (("--chains", tmp_path / "nodir/c.h5", "does not exist"),
+                                 ("--chains", tmp_path / "c.txt", "write .h5 or .hdf5"),
+                                 ("--plot", path, "cannot make the folder")):
+        result = CliRunner().invoke(app, ["fit", str(path), "--motions", "--uncertainty",
+                                          "emcee", option, str(value), "--out", out])
+        assert result.exit_code == 2 and words in result.output, result.output
+        assert "fitting" not in result.output
 
 
 def test_fit_plots_fixes_and_ties(tmp_path):

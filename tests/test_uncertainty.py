@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -57,6 +59,14 @@ def test_the_verdict_counts_the_rows_and_the_converged_chains(both):
     assert mc.verdict() == (f"emcee on 2 rows (0 converged; the others' largest R-hat "
                             f"{worst:.2f}: their intervals are not to be trusted, see "
                             "uq_reason), 1 row skipped (see uq_reason)")
+    # a chain that failed (e.g. its HDF5 file could not be written) is counted as such
+    failed = dataclasses.replace(mc, chains=[mc.chains[0], None, *mc.chains[2:]],
+                                 reason=[mc.reason[0], "emcee failed: disk full",
+                                         *mc.reason[2:]])
+    assert failed.verdict() == (f"emcee on 2 rows (0 converged; the others' largest R-hat "
+                                f"{np.nanmax(list(mc.rhat[0].values())):.2f}: their intervals "
+                                "are not to be trusted, see uq_reason; 1 failed: emcee "
+                                "failed: disk full), 1 row skipped (see uq_reason)")
 
 
 @pytest.mark.slow

@@ -79,6 +79,13 @@ def fit(
     fixed = _fixes(fix)
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
+    check_writable(chains, "--chains", (".h5", ".hdf5"))
+    if plot is not None:  # before any work, as the other outputs
+        try:
+            plot.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise typer.BadParameter(f"{plot}: cannot make the folder ({exc.strerror})",
+                                     param_hint="--plot") from None
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
     if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~0.7 s)
         from frictionfit.uncertainty import METHODS

@@ -76,12 +76,15 @@ class Posterior:
             text = {"laplace": f"Laplace on {count}", "emcee": f"emcee on {count}",
                     "none": f"{count} skipped (see uq_reason)"}[method]
             if method == "emcee":
-                stuck = [i for i in rows if not self.converged[i]]
-                text += f" ({len(rows) - len(stuck)} converged"
+                failed = [i for i in rows if self.chains[i] is None]
+                stuck = [i for i in rows if not self.converged[i] and i not in failed]
+                text += f" ({len(rows) - len(stuck) - len(failed)} converged"
                 if stuck:
                     worst = max(np.nanmax([*self.rhat[i].values(), np.nan]) for i in stuck)
                     text += (f"; the others' largest R-hat {worst:.2f}: their intervals are "
                              "not to be trusted, see uq_reason")
+                if failed:
+                    text += f"; {len(failed)} failed: {self.reason[failed[0]]}"
                 text += ")"
             parts.append(text)
         return ", ".join(parts)
