@@ -38,6 +38,28 @@ def test_simulate_rejects_unknown_classes_and_missing_out(tmp_path):
     assert result.exit_code == 2 and "--out DIR is required" in result.output
 
 
+def test_simulate_never_writes_over_a_recording_it_did_not_make(tmp_path):
+    from frictionfit.recording import Recording, write_recording
+
+    lab = Recording.from_arrays(np.arange(40.0).reshape(20, 2), 1000.0, ["thumb_x", "index_x"],
+                                name="s1_paper-1_01", metadata={"label": "paper-1"})
+    write_recording(lab, tmp_path / lab.name)
+    before = (tmp_path / "s1_paper-1_01.csv").read_bytes()
+    args = ["--seed", "1", "--sessions", "1", "--measurements-per-class", "1", "--classes",
+            "paper-1", "--no-progress"]
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path), *args])
+    assert result.exit_code == 2 and "holds recordings that are not simulated (e.g. " \
+        "s1_paper-1_01.json)" in result.output
+    assert (tmp_path / "s1_paper-1_01.csv").read_bytes() == before
+    for _ in range(2):  # its own output it may write again
+        again = runner.invoke(app, ["simulate", "--out", str(tmp_path / "own"), *args])
+        assert again.exit_code == 0, again.output
+    file = tmp_path / "file"
+    file.write_text("")
+    result = runner.invoke(app, ["simulate", "--out", str(file), *args])
+    assert result.exit_code == 2 and "cannot make the folder" in result.output
+
+
 def test_simulate_gestures(tmp_path):
     result = runner.invoke(app, ["simulate", "gestures", "--out", str(tmp_path), "--seed", "2",
                                  "--people", "1", "--repetitions", "1", "--no-progress"])

@@ -9,6 +9,26 @@ import typer
 app = typer.Typer(help="Simulate rubbing measurements or touch gestures with known truth.")
 
 
+def _folder(out: Path) -> None:
+    """Make ``out``, before any work; refuse a folder that holds recordings which are not
+    simulated (their names could be the simulator's: a lab's data is never overwritten)."""
+    import json
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise typer.BadParameter(f"{out}: cannot make the folder ({exc.strerror})",
+                                 param_hint="--out") from None
+    for side in sorted(out.glob("*.json")):
+        try:
+            synthetic = json.loads(side.read_text()).get("metadata", {}).get("synthetic")
+        except (OSError, ValueError, AttributeError):
+            synthetic = None
+        if synthetic is not True:
+            raise typer.BadParameter(f"{out} holds recordings that are not simulated (e.g. "
+                                     f"{side.name}); choose another folder", param_hint="--out")
+
+
 @app.callback(invoke_without_command=True)
 def simulate(
     ctx: typer.Context,
@@ -41,6 +61,7 @@ def simulate(
     if unknown:
         typer.echo(f"error: unknown class(es) {unknown}; known: {', '.join(CLASSES)}", err=True)
         raise typer.Exit(2)
+    _folder(out)
     total = sessions * len(labels) * measurements_per_class
     with Progress(disable=not progress, transient=True) as bar:
         task = bar.add_task("simulating measurements", total=total)
@@ -62,5 +83,6 @@ def gestures(
     """Write simulated touch gestures: people x 7 gestures x repetitions."""
     from frictionfit.simulation.gestures import simulate_gestures
 
+    _folder(out)
     paths = simulate_gestures(out, seed, people, repetitions, progress=progress)
     typer.echo(f"wrote {len(paths)} synthetic gestures to {out}")
