@@ -242,9 +242,18 @@ def test_outputs_that_cannot_be_written_are_refused_before_any_work(folders, tmp
     for args in (["features", "--dataset", f"recordings:{folders[1]}", "--out", nowhere + ".csv"],
                  ["train", "--dataset", f"recordings:{folders[0]}", "--out", nowhere + ".skops"],
                  ["evaluate", "--dataset", f"recordings:{folders[0]}", "--reliability",
-                  nowhere + ".png"]):
+                  nowhere + ".png"],
+                 ["evaluate", "--dataset", f"recordings:{folders[0]}", "--results",
+                  nowhere + ".md"]):
         result = runner.invoke(app, args)
         assert result.exit_code == 2 and "does not exist" in result.output, result.output
+    file = tmp_path / "file"  # a file where a folder must go
+    file.write_text("")
+    recording = str(sorted(folders[1].glob("*.csv"))[0])
+    for args in (["bench", "fit", "--out", str(file / "bench")],
+                 ["plot", recording, "--out", str(file / "p.png")]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2 and "cannot make the folder" in result.output, result.output
 
 
 def test_problems_found_on_reading_reach_the_feature_table(folders, tmp_path):

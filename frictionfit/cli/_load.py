@@ -67,6 +67,16 @@ def write_table(frame, out: Path) -> None:
         frame.to_csv(out, index=False)
 
 
+def make_folder(path: Path, option: str) -> None:
+    """Make the output folder ``path`` (and its parents) before any work is done; refuse,
+    in words, one that cannot be made."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise typer.BadParameter(f"{path}: cannot make the folder ({exc.strerror})",
+                                 param_hint=option) from None
+
+
 def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = ()) -> None:
     """Refuse an output path that cannot be written, before any work is done."""
     if path is None:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import check_writable, make_folder
+
 STAGES = ("fit", "uncertainty", "classify")
 
 
@@ -46,6 +48,8 @@ def bench(
     if (what == "lab") != (dataset is not None):
         raise typer.BadParameter("lab needs a folder of recordings, and only lab takes one",
                                  param_hint="--dataset")
+    make_folder(out, "--out")
+    check_writable(results, "--results")
     from frictionfit.bench.report import merge, record_results, write_report
 
     stages = [_run_stage(s, quick, seed) for s in STAGES if what in (s, "all")]

@@ -270,7 +270,8 @@ def evaluate(
     from frictionfit.classify import projection_for
 
     for path, option in ((out, "--out"), (confusion, "--confusion"),
-                         (reliability, "--reliability"), (predictions, "--predictions")):
+                         (reliability, "--reliability"), (predictions, "--predictions"),
+                         (results, "--results")):
         check_writable(path, option)
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)

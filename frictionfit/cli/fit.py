@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from frictionfit.cli._load import STRICT_HELP, WHOLE_LAWS_HELP, check_writable, write_table
+from frictionfit.cli._load import (
+    STRICT_HELP,
+    WHOLE_LAWS_HELP,
+    check_writable,
+    make_folder,
+    write_table,
+)
 
 #: Options that only per-motion fits (``--motions``) take.
 _PER_MOTION = ("--chains", "--tie", "--scheduler", "--n-starts", "--solver")
@@ -80,12 +86,8 @@ def fit(
     priors = _priors(prior)
     check_writable(out, "--out", (".csv", ".parquet"))
     check_writable(chains, "--chains", (".h5", ".hdf5"))
-    if plot is not None:  # before any work, as the other outputs
-        try:
-            plot.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise typer.BadParameter(f"{plot}: cannot make the folder ({exc.strerror})",
-                                     param_hint="--plot") from None
+    if plot is not None:
+        make_folder(plot, "--plot")
     files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
     if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~0.7 s)
         from frictionfit.uncertainty import METHODS

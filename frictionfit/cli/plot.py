@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import make_folder
+
 #: Phase shading, in colours no channel line uses.
 _SHADE = {"move_out": "gold", "move_back": "gold",
           "relax_out": "lightsteelblue", "relax_back": "lightsteelblue"}
@@ -39,6 +41,7 @@ def plot(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     out = out or Path(recording_paths(path)[0].stem + ".png")
+    make_folder(out.parent, "--out")
     fig, ax = plt.subplots(figsize=(12, 5), constrained_layout=True)
     for m in motions:
         for p in m.phases:
@@ -56,7 +59,6 @@ def plot(
     ax.set(xlabel="t [s]", ylabel=f"signal [{', '.join(units)}]",
            title=f"{rec.name} ({rec.label}): movement yellow, relaxation blue, commands dotted")
     fig.legend(loc="outside lower center", fontsize=8, ncol=len(rec.channels) + 1)
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     typer.echo(f"wrote {out} ({len(motions)} motion(s) shaded, {len(rec.problems)} problem(s))")

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from frictionfit.cli._load import make_folder
+
 app = typer.Typer(help="Simulate rubbing measurements or touch gestures with known truth.")
 
 
@@ -14,11 +16,7 @@ def _folder(out: Path) -> None:
     simulated (their names could be the simulator's: a lab's data is never overwritten)."""
     import json
 
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise typer.BadParameter(f"{out}: cannot make the folder ({exc.strerror})",
-                                 param_hint="--out") from None
+    make_folder(out, "--out")
     for side in sorted(out.glob("*.json")):
         try:
             synthetic = json.loads(side.read_text()).get("metadata", {}).get("synthetic")
