@@ -310,7 +310,9 @@ def validate(rec: Recording) -> list[Problem]:
                 Problem(
                     "sample_rate",
                     f"median sample interval {median * 1e3:.4g} ms does not match "
-                    f"sample_rate_hz={rec.sample_rate_hz:g} ({nominal * 1e3:.4g} ms)",
+                    f"sample_rate_hz={rec.sample_rate_hz:g} ({nominal * 1e3:.4g} ms)"
+                    + (" (is t in milliseconds? it must be seconds)"
+                       if abs(median / nominal - 1e3) < RATE_TOLERANCE * 1e3 else ""),
                 )
             )
         gaps = np.flatnonzero(dt > 1.5 * nominal)

@@ -243,6 +243,15 @@ def test_a_recording_cut_short_is_used_and_named(tmp_path, rng):
             read_recording(tmp_path / "bad")
 
 
+def test_time_in_milliseconds_is_named(tmp_path, rng):
+    rec = _rec(rng)
+    write_recording(Recording(rec.t * 1e3, rec.samples, 1000.0, rec.channels), tmp_path / "ms")
+    with pytest.raises(RecordingError, match=r"ms\.csv: median sample interval 1000 ms does "
+                                             r"not match .* \(is t in milliseconds\? it must "
+                                             r"be seconds\)"):
+        read_recording(tmp_path / "ms")
+
+
 def test_gaps_are_reported_not_raised(tmp_path, rng):
     rec = _rec(rng)
     keep = np.r_[0:100, 150:500]
