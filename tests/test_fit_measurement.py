@@ -321,6 +321,16 @@ def test_a_dead_channel_is_named_and_the_others_fitted(tmp_path, simulated):
     assert alone.exit_code == 2 and "no recording could be fitted" in alone.output
 
 
+def test_moves_without_targets_alternate_out_and_back(simulated):
+    rec = simulated[1]
+    bare = dataclasses.replace(rec, events=tuple(dataclasses.replace(e, target=None)
+                                                 for e in rec.events))
+    with_targets, without = measurement_data(rec, "index_x"), measurement_data(bare, "index_x")
+    # every move had been "out" (k 0.25 against 41 N/mm on the sample, "converged")
+    np.testing.assert_array_equal(without.signs, with_targets.signs)
+    np.testing.assert_array_equal(without.signs[:4], [1.0, -1.0, 1.0, -1.0])
+
+
 def test_a_clipped_channel_is_fitted_without_its_clipped_runs_and_says_so(simulated):
     rec = simulated[1]
     samples = rec.samples.copy()

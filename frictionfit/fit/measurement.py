@@ -121,13 +121,16 @@ class MeasurementData:
 
 
 def _move_signs(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) of the ``move`` events and their signs: the first target is out (+1)."""
+    """Times (s) of the ``move`` events and their signs: the first target is out (+1);
+    moves without targets alternate out and back, as the protocol does."""
     moves = [e for e in rec.events if e.kind == "move"]
     if not moves:
         raise ValueError(f"{rec.name}: no 'move' events; a measurement fit needs the commands")
     out = moves[0].target
-    return (np.array([e.t for e in moves]),
-            np.array([1.0 if e.target == out else -1.0 for e in moves]))
+    signs = (np.array([1.0 if e.target == out else -1.0 for e in moves])
+             if all(e.target is not None for e in moves)
+             else np.where(np.arange(len(moves)) % 2 == 0, 1.0, -1.0))
+    return np.array([e.t for e in moves]), signs
 
 
 def _block_edges(t: np.ndarray, commands: np.ndarray, fine: int, coarse: int) -> np.ndarray:
