@@ -325,6 +325,14 @@ def validate(rec: Recording) -> list[Problem]:
                     f"first at t={rec.t[gaps[0]]:.6g} s",
                 )
             )
+        # the uniform grid every analysis uses keeps one sample per slot
+        slot = (rec.t - rec.t[0]) * rec.sample_rate_hz
+        shared = int(slot.size - np.unique(np.round(slot)).size)
+        if shared:
+            problems.append(Problem(
+                "jitter", f"{shared} sample(s) share a slot of the {rec.sample_rate_hz:g}-Hz "
+                "grid with a neighbour (their time stamps jitter by half a sample interval or "
+                "more): one sample of each slot is used"))
     outside = [e for e in rec.events
                if np.all(np.isfinite(rec.t)) and not rec.t[0] <= e.t <= rec.t[-1]]
     if outside:
@@ -375,7 +383,7 @@ def validate(rec: Recording) -> list[Problem]:
 #: samples); segmentation and fitting mask them. A recording that ends before its last
 #: commands (an interrupted acquisition keeps every row it flushed and every command it
 #: sent) is used as far as it goes.
-INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early"})
+INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early", "jitter"})
 #: Problems that make every number taken from the recording wrong: commands skip such a
 #: recording, naming it and the problem, unless asked to stop (``--strict``).
 DISQUALIFYING = frozenset({"too_short", "nonfinite_time", "nonmonotonic_time", "sample_rate",

@@ -252,6 +252,17 @@ def test_time_in_milliseconds_is_named(tmp_path, rng):
         read_recording(tmp_path / "ms")
 
 
+def test_time_stamps_that_jitter_onto_a_neighbours_slot_are_counted(tmp_path, rng):
+    rec = _rec(rng)
+    t = rec.t.copy()
+    t[100:400:50] += 0.6e-3  # six samples pushed onto the next sample's slot
+    write_recording(Recording(t, rec.samples, 1000.0, rec.channels), tmp_path / "j")
+    back = read_recording(tmp_path / "j")  # informational: the grid keeps one per slot
+    assert [str(p) for p in back.problems if p.kind == "jitter"] == [
+        "6 sample(s) share a slot of the 1000-Hz grid with a neighbour (their time stamps "
+        "jitter by half a sample interval or more): one sample of each slot is used"]
+
+
 def test_gaps_are_reported_not_raised(tmp_path, rng):
     rec = _rec(rng)
     keep = np.r_[0:100, 150:500]
