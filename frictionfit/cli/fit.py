@@ -13,6 +13,7 @@ from frictionfit.cli._load import (
     WHOLE_LAWS_HELP,
     check_writable,
     make_folder,
+    problems_of,
     write_table,
 )
 
@@ -302,7 +303,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     items, problems = [], []
     for rec, found in _prepared(files, strict, fitted_channels):
         items += found
-        problems += ["; ".join(f"[{p.kind}] {p}" for p in rec.problems)] * len(found)
+        problems += [problems_of(rec)] * len(found)
     if not items:
         typer.echo("error: no recording could be fitted from the given paths", err=True)
         raise typer.Exit(2)
@@ -351,7 +352,7 @@ def _trials(files: list[Path], strict: bool):
     used = 0
     for rec, motions in _prepared(files, strict, motions_in_newtons):
         used += 1
-        problems[rec.name] = "; ".join(f"[{p.kind}] {p}" for p in rec.problems)
+        problems[rec.name] = problems_of(rec)
         for m in motions:
             by_interval.setdefault(round(float(m.t[1] - m.t[0]), 12), []).append(m)
     return [Trials.from_motions(ms) for ms in by_interval.values()], problems, used

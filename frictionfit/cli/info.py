@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import STRICT_HELP
+from frictionfit.cli._load import STRICT_HELP, problems_of
 
 
 def _dataset(spec: str, strict: bool) -> None:
@@ -31,7 +31,7 @@ def _dataset(spec: str, strict: bool) -> None:
     if problems:
         typer.echo("problems: " + ", ".join(f"{k} x{n}" for k, n in sorted(problems.items())))
         for r in flagged:
-            typer.echo(f"  {r.name}: " + "; ".join(f"[{p.kind}] {p}" for p in r.problems))
+            typer.echo(f"  {r.name}: {problems_of(r)}")
 
 
 def _recording(path: Path) -> None:
