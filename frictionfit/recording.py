@@ -205,6 +205,11 @@ class Recording:
         return self.metadata.get("label")
 
     @property
+    def grid_slots(self) -> np.ndarray:
+        """Each sample's slot ``k`` on the uniform grid ``t[0] + k / sample_rate_hz``."""
+        return np.round((self.t - self.t[0]) * self.sample_rate_hz).astype(np.int64)
+
+    @property
     def duration_s(self) -> float:
         return float(self.t[-1] - self.t[0]) if self.n_samples else 0.0
 
@@ -326,8 +331,7 @@ def validate(rec: Recording) -> list[Problem]:
                 )
             )
         # the uniform grid every analysis uses keeps one sample per slot
-        slot = (rec.t - rec.t[0]) * rec.sample_rate_hz
-        shared = int(slot.size - np.unique(np.round(slot)).size)
+        shared = rec.n_samples - np.unique(rec.grid_slots).size
         if shared:
             problems.append(Problem(
                 "jitter", f"{shared} sample(s) share a slot of the {rec.sample_rate_hz:g}-Hz "

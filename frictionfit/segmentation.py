@@ -125,7 +125,7 @@ def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
 
 def regrid(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     """Samples on the uniform grid ``t[0] + k / sample_rate_hz``; NaN rows for dropped samples."""
-    k = np.round((rec.t - rec.t[0]) * rec.sample_rate_hz).astype(np.int64)
+    k = rec.grid_slots
     n = int(k[-1]) + 1 if k.size else 0
     grid = np.full((n, rec.samples.shape[1]), np.nan)
     grid[k] = rec.samples
