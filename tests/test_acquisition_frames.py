@@ -79,6 +79,8 @@ def test_bad_checksum_is_counted_and_next_frame_recovered():
     bad[9] ^= 0x40
     parser = FrameParser()
     msgs = parser.feed(b"\x00\xaa\x07" + good[0] + good[1] + bytes(bad) + good[3])
+    assert [m.counter for m in msgs] == [0, 1]  # 3 waits for its successor's counter
+    msgs += parser.flush()
     assert [m.counter for m in msgs] == [0, 1, 3]
     assert (parser.frames_valid, parser.frames_corrupted, parser.samples_lost) == (3, 1, 1)
     assert msgs[2].lost_before == 1
@@ -88,8 +90,54 @@ def test_counter_wraps_and_step_is_learned():
     parser = FrameParser()
     counters = [65530, 65533, 0, 6]  # step 3; 65533 -> 0 wraps; 0 -> 6 loses one
     msgs = parser.feed(b"".join(DataFrame(c, 0, (0, 0, 0)).encode() for c in counters))
+    msgs += parser.flush()
     assert parser.counter_step == 3
     assert [m.lost_before for m in msgs] == [0, 0, 0, 1]
+
+
+def _counters(counters, parser=None):
+    parser = parser or FrameParser()
+    msgs = parser.feed(b"".join(DataFrame(c, 0, (c & 0x7FFF, 0, 0)).encode() for c in counters))
+    return [(m.counter, m.lost_before) for m in msgs + parser.flush()], parser
+
+
+def test_a_counter_that_passes_the_checksum_but_contradicts_its_neighbours_is_dropped():
+    frames = [DataFrame(c, 0, (1, 2, 3)).encode() for c in range(0x0100, 0x0108)]
+    swapped = bytearray(frames[4])
+    swapped[4], swapped[5] = swapped[5], swapped[4]  # 0x0104 -> 0x0401: the sum holds
+    frames[4] = bytes(swapped)
+    parser = FrameParser()
+    msgs = parser.feed(b"".join(frames)) + parser.flush()
+    # kept, it said 0x0401 - 0x0103 - 1 = 765 samples were lost, then 64,770 more
+    assert [(m.counter, m.lost_before) for m in msgs] == [
+        (0x0100, 0), (0x0101, 0), (0x0102, 0), (0x0103, 0), (0x0105, 1), (0x0106, 0),
+        (0x0107, 0)]
+    assert (parser.frames_valid, parser.frames_corrupted, parser.samples_lost) == (7, 1, 1)
+
+
+@pytest.mark.parametrize(("counters", "expected"), [
+    # true losses are kept, however long, across the wrap too
+    ([10, 11, 60, 61], [(10, 0), (11, 0), (60, 48), (61, 0)]),
+    ([65534, 65535, 4, 5], [(65534, 0), (65535, 0), (4, 4), (5, 0)]),
+    # two losses in a row, and a loss just before the stream ends (flushed)
+    ([1, 2, 5, 9, 10, 12], [(1, 0), (2, 0), (5, 2), (9, 3), (10, 0), (12, 1)]),
+    # a repeated counter, and a step learned too large from a lost second frame
+    ([7, 8, 8, 9], [(7, 0), (8, 0), (8, 0), (9, 0)]),
+    ([0, 20, 30, 40], [(0, 0), (20, 0), (30, 0), (40, 0)]),
+    # a wrong counter in frame 3's place: dropped, its slot lost before the next frame
+    ([1, 2, 40000, 4, 5], [(1, 0), (2, 0), (4, 1), (5, 0)]),
+])
+def test_counter_check_keeps_true_losses(counters, expected):
+    assert _counters(counters)[0] == expected
+
+
+def test_a_configuration_acknowledge_releases_a_held_frame():
+    parser = FrameParser()
+    stream = b"".join(DataFrame(c, 0, (0, 0, 0)).encode() for c in (1, 2, 5))
+    msgs = parser.feed(stream + ConfigAck(0).encode() + DataFrame(100, 0, (0, 0, 0)).encode())
+    assert [(type(m).__name__, getattr(m, "lost_before", None)) for m in msgs] == [
+        ("DataFrame", 0), ("DataFrame", 0), ("DataFrame", 2), ("ConfigAck", None),
+        ("DataFrame", 0)]
 
 
 def test_host_stream_ignores_daq_frames():

@@ -157,6 +157,26 @@ def test_pulled_cable_reconnects_with_the_gap_marked(tmp_path):
     assert rec.t[-1] > 2.0 and [p.kind for p in rec.problems] == ["gap"]
 
 
+def test_frames_received_before_the_cable_was_pulled_are_kept(tmp_path):
+    with FakeOptoForce(tmp_path / "tty", source=lambda k: (k, 7, 9)) as fake:
+        stream = SensorStream(str(tmp_path / "tty"), "thumb", 1000, retry_s=60)
+        stream.connect()
+        stream.wait_first_frame()
+        t0 = stream.first_frame_time
+        time.sleep(0.3)  # frames wait in the reader's queue, not yet polled
+        fake.disconnect()
+        deadline = time.monotonic() + 5
+        while stream.sensor.alive and time.monotonic() < deadline:
+            time.sleep(0.01)
+        ks, values = stream.poll(t0)  # the link has ended: its frames are still numbered
+        stream.close()
+    assert not stream.connected and fake.frames_sent > 250
+    # every frame the fake wrote before the pty closed (a few may die in the kernel's buffer)
+    assert fake.frames_sent - 5 <= len(ks) <= fake.frames_sent
+    np.testing.assert_array_equal(values[:, 0], np.arange(len(ks)))
+    np.testing.assert_array_equal(ks, ks[0] + np.arange(len(ks)))
+
+
 def test_two_ports_share_one_grid(tmp_path):
     with FakeOptoForce(tmp_path / "a", seed=1) as fa, FakeOptoForce(tmp_path / "b", seed=2):
         result = CliRunner().invoke(app, [

@@ -190,12 +190,20 @@ class FrameParser:
         The counter is forgotten, and the step learned anew, at every acknowledge
         of a configuration.
 
+    A data frame whose counter does not follow the previous one by the step is held
+    back until the next frame (one frame period): kept when its counter lies between
+    its neighbours' (samples were lost before it), dropped and counted corrupted when
+    it does not. The checksum is a plain sum, blind to swapped bytes (reference
+    section 3), and one frame's wrong counter would otherwise shift every later
+    sample by up to 65 536 samples. :meth:`flush` releases a held frame.
+
     Attributes
     ----------
     frames_valid : int
-        Data frames that passed the checksum.
+        Data frames returned (passed the checksum and the counter's check).
     frames_corrupted : int
-        Messages with a known header whose checksum failed.
+        Messages with a known header whose checksum failed, and data frames whose
+        counter contradicts both neighbours'.
     bytes_discarded : int
         Bytes skipped while searching for a header (garbage, broken frames).
     samples_lost : int
@@ -212,24 +220,55 @@ class FrameParser:
         self.bytes_discarded = 0
         self.samples_lost = 0
         self._given_step = counter_step
+        self._held: DataFrame | None = None
         self.restart_counter()
 
     def restart_counter(self) -> None:
-        """Forget the last counter and the learned step (done at every acknowledge)."""
+        """Forget the last counter and the learned step (done at every acknowledge, after
+        :meth:`flush`)."""
         self.counter_step = self._given_step
         self._last_counter: int | None = None
 
-    def _lost(self, counter: int) -> int:
-        last, self._last_counter = self._last_counter, counter
+    def flush(self) -> list[DataFrame]:
+        """Release the frame held back for its successor's counter (none: ``[]``)."""
+        held, self._held = self._held, None
+        return [] if held is None else [self._accept(held)]
+
+    def _accept(self, frame: DataFrame) -> DataFrame:
+        """Count ``frame`` valid and set its ``lost_before`` from the counter."""
+        self.frames_valid += 1
+        last, self._last_counter = self._last_counter, frame.counter
         if last is None:
-            return 0
-        diff = (counter - last) & 0xFFFF
+            return frame
+        diff = _ahead(last, frame.counter)
         if diff == 0:
-            return 0  # a repeated counter: nothing is known to be lost
+            return frame  # a repeated counter: nothing is known to be lost
         if self.counter_step is None or diff < self.counter_step:
             self.counter_step = diff
-            return 0
-        return max(round(diff / self.counter_step) - 1, 0)
+            return frame
+        lost = max(round(diff / self.counter_step) - 1, 0)
+        self.samples_lost += lost
+        return DataFrame(frame.counter, frame.status, frame.counts, lost) if lost else frame
+
+    def _sequence(self, frame: DataFrame) -> list[DataFrame]:
+        """The data frames that ``frame`` releases, in order (see the class docstring)."""
+        out = []
+        held, self._held = self._held, None
+        last = self._last_counter
+        if held is not None:
+            assert last is not None  # a frame is held only after an accepted one
+            if _ahead(last, held.counter) + _ahead(held.counter, frame.counter) == _ahead(
+                    last, frame.counter):
+                out.append(self._accept(held))
+                last = held.counter
+            else:  # the held counter lies outside its neighbours': wrong, though summed right
+                self.frames_corrupted += 1
+        step = self.counter_step
+        if last is not None and step is not None and _ahead(last, frame.counter) != step:
+            self._held = frame
+        else:
+            out.append(self._accept(frame))
+        return out
 
     def feed(self, data: bytes) -> list[Message]:
         """Append ``data`` and return the complete messages now available, in order."""
@@ -265,18 +304,21 @@ class FrameParser:
                 pos += 1
                 continue
             msg = decode(frame)
-            if isinstance(msg, ConfigAck):  # a new configuration: the step may change
-                self.restart_counter()
-            elif isinstance(msg, DataFrame):
-                self.frames_valid += 1
-                lost = self._lost(msg.counter)
-                self.samples_lost += lost
-                if lost:
-                    msg = DataFrame(msg.counter, msg.status, msg.counts, lost)
-            out.append(msg)
+            if isinstance(msg, DataFrame):
+                out += self._sequence(msg)
+            else:
+                if isinstance(msg, ConfigAck):  # a new configuration: the step may change
+                    out += self.flush()
+                    self.restart_counter()
+                out.append(msg)
             pos += length
         del buf[:pos]
         return out
+
+
+def _ahead(a: int, b: int) -> int:
+    """How far counter ``b`` is ahead of ``a``, modulo the 16-bit wrap."""
+    return (b - a) & 0xFFFF
 
 
 def axis_names(n_counts: int) -> tuple[str, ...]:

@@ -113,6 +113,7 @@ class OptoForceSensor:
         self.first_frame_time: float | None = None
         self.frames_overflow = 0
         self.frames_before_config = 0
+        self._carry = 0  # samples dropped on a full queue, added to the next frame's lost_before
         self._queue: queue.Queue[DataFrame] = queue.Queue(queue_size)
         self._backlog: list[Message] = []
         self._thread: threading.Thread | None = None
@@ -200,30 +201,37 @@ class OptoForceSensor:
     def _run(self) -> None:
         port = self.port
         assert port is not None, "open() first"
-        carry = 0  # samples dropped on a full queue, added to the next frame's lost_before
-        chunk, self._backlog = b"", self._backlog  # frames that came with the acknowledge
-        while not self._halt.is_set():
-            now = time.monotonic()
-            msgs, self._backlog = self._backlog + self.parser.feed(chunk), []
-            for msg in msgs:
-                if isinstance(msg, ConfigAck):
-                    self._ack_seen.set()
-                elif isinstance(msg, DataFrame):
-                    if self.first_frame_time is None:
-                        self.first_frame_time = now
-                    if carry:
-                        msg = replace(msg, lost_before=msg.lost_before + carry)
-                    try:
-                        self._queue.put_nowait(msg)
-                        carry = 0
-                    except queue.Full:
-                        self.frames_overflow += 1
-                        carry = msg.lost_before + 1
-            try:
-                chunk = port.read(max(1, port.in_waiting))
-            except Exception as exc:  # any failure of the link ends this thread, reported
-                self.error = f"{type(exc).__name__}: {exc}"
-                return
+        self._queue_messages(self._backlog)  # frames that came with the acknowledge
+        self._backlog = []
+        try:
+            while not self._halt.is_set():
+                try:
+                    chunk = port.read(max(1, port.in_waiting))
+                except Exception as exc:  # any failure of the link ends this thread, reported
+                    self.error = f"{type(exc).__name__}: {exc}"
+                    return
+                self._queue_messages(self.parser.feed(chunk))
+        finally:
+            self._queue_messages(self.parser.flush())  # a frame held back for its successor
+
+    def _queue_messages(self, msgs: list[Message]) -> None:
+        """Queue the data frames of ``msgs``; note an acknowledge. A frame that finds the
+        queue full is counted, and its sample added to the next frame's ``lost_before``."""
+        now = time.monotonic()
+        for msg in msgs:
+            if isinstance(msg, ConfigAck):
+                self._ack_seen.set()
+            elif isinstance(msg, DataFrame):
+                if self.first_frame_time is None:
+                    self.first_frame_time = now
+                if self._carry:
+                    msg = replace(msg, lost_before=msg.lost_before + self._carry)
+                try:
+                    self._queue.put_nowait(msg)
+                    self._carry = 0
+                except queue.Full:
+                    self.frames_overflow += 1
+                    self._carry = msg.lost_before + 1
 
     @property
     def alive(self) -> bool:

@@ -146,12 +146,12 @@ class SensorStream:
         self._done["overflow"] += sensor.frames_overflow
         self.sensor = None
 
-    def _check_link(self) -> None:
+    def _link_ended(self) -> bool:
+        """True when the reader thread stopped on an error (the cable was pulled)."""
         sensor = self.sensor
-        if sensor is not None and not sensor.alive and sensor.error is not None:
-            self._down_reason = sensor.error
-            self._down_since = self.clock()
-            self._retire()
+        return sensor is not None and not sensor.alive and sensor.error is not None
+
+    def _reconnect_if_due(self) -> None:
         if self.sensor is None and not self._closed and (
                 self.clock() - self._last_try >= self.retry_s):
             self._last_try = self.clock()
@@ -184,14 +184,27 @@ class SensorStream:
         """New samples: indices ``k`` (n,) on the grid started at host time ``t0``, values (n, c).
 
         Values are in the channels' units; frames whose status flags a DAQ or sensor
-        error become NaN rows (counted in ``frames_flagged``).
+        error become NaN rows (counted in ``frames_flagged``). When the link has ended,
+        the frames it received are numbered on it before the port is reopened.
         """
-        self._check_link()
-        frames = self._pending + (self.sensor.frames() if self.sensor is not None else [])
-        self._pending = []
-        n_chan = len(self.channels)
+        frames, self._pending = self._pending, []
+        ended = []
+        if self._link_ended():
+            assert self.sensor is not None
+            ended.append(self._number(frames + self.sensor.frames(), t0))
+            frames = []
+            self._down_reason, self._down_since = self.sensor.error or "", self.clock()
+            self._retire()
+        self._reconnect_if_due()
+        if self.sensor is not None:
+            frames += self.sensor.frames()
+        ks, values = zip(*ended, self._number(frames, t0), strict=True)
+        return np.concatenate(ks), np.concatenate(values)
+
+    def _number(self, frames: list[DataFrame], t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """Grid indices (n,) and values (n, c) of one link's ``frames``, in order."""
         ks = np.empty(len(frames), dtype=np.int64)
-        values = np.empty((len(frames), n_chan))
+        values = np.empty((len(frames), len(self.channels)))
         for i, f in enumerate(frames):
             if self._new_link:
                 k = self._start_index(t0)
