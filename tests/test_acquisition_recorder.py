@@ -4,6 +4,7 @@ A fake OptoForce DAQ on a pty (tests/fake_optoforce.py) streams at 1 kHz with fr
 corrupted on purpose and garbage between frames.
 """
 
+import errno
 import json
 import os
 import signal
@@ -177,6 +178,52 @@ def test_frames_received_before_the_cable_was_pulled_are_kept(tmp_path):
     np.testing.assert_array_equal(ks, ks[0] + np.arange(len(ks)))
 
 
+class _FullDisk:
+    """The CSV's file once its disk has filled up: every write fails with ENOSPC."""
+
+    def __init__(self, file):
+        self.file = file
+
+    def write(self, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name):
+        return getattr(self.file, name)
+
+
+def test_a_full_disk_stops_the_recording_in_words_and_the_sidecar_says_so(tmp_path):
+    def fill_the_disk_later(t0, writer):
+        timer = threading.Timer(0.6, lambda: setattr(writer, "_csv", _FullDisk(writer._csv)))
+        timer.start()
+        return timer.cancel
+
+    with FakeOptoForce(tmp_path / "tty") as fake:
+        stream = SensorStream(str(tmp_path / "tty"), "thumb", 1000)
+        stream.connect()
+        started = time.monotonic()
+        with pytest.raises(AcquisitionError, match=(
+                r"rec.csv: cannot write the rows \(No space left on device\); \d+ rows are "
+                r"on disk, \d+ received rows are not; the recording stopped there")):
+            record([stream], tmp_path / "rec", duration_s=20, on_start=fill_the_disk_later)
+    assert time.monotonic() - started < 10
+    assert fake.configs[-1].speed == 0  # the DAQ was told to stop
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    acq = rec.extra["acquisition"]
+    assert acq["status"] == "failed" and "No space left on device" in acq["failure"]
+    assert acq["rows"] == rec.n_samples and 300 < rec.n_samples < 1000
+
+
+def test_a_disk_that_refuses_the_first_row_is_said_before_any_sample(tmp_path):
+    (tmp_path / "rec.csv").symlink_to("/dev/full")  # writes fail with ENOSPC
+    with FakeOptoForce(tmp_path / "tty"):
+        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--duration", "5", "--out", str(tmp_path / "rec")])
+    assert result.exit_code == 1
+    assert "rec.csv: cannot write (No space left on device); 0 rows are on disk" in result.output
+    sidecar = json.loads((tmp_path / "rec.json").read_text())
+    assert sidecar["acquisition"]["status"] == "failed"
+
+
 def test_two_ports_share_one_grid(tmp_path):
     with FakeOptoForce(tmp_path / "a", seed=1) as fa, FakeOptoForce(tmp_path / "b", seed=2):
         result = CliRunner().invoke(app, [
@@ -213,6 +260,19 @@ def test_acquire_bad_port_exits_in_words(tmp_path):
                                       "--duration", "1", "--out", str(tmp_path / "r")])
     assert result.exit_code == 1
     assert "none: cannot open the port" in result.output
+
+
+@pytest.mark.parametrize(("options", "words"), [
+    (["--out", "{tmp}/file/rec"], "--out: {tmp}/file: cannot make the folder"),
+    (["--out", "{tmp}/rec", "--duration", "-1"], "--duration: must be >= 0 s"),
+])
+def test_acquire_refuses_its_options_before_opening_a_port(tmp_path, options, words):
+    (tmp_path / "file").write_text("a file where a folder should be")
+    result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "none"),
+                                      *(o.format(tmp=tmp_path) for o in options)])
+    assert result.exit_code == 2
+    assert words.format(tmp=tmp_path) in " ".join(result.output.split())
+    assert "cannot open the port" not in result.output
 
 
 def _wait_for_rows(csv, n, timeout=30):

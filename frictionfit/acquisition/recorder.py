@@ -10,11 +10,12 @@ merges their samples into rows on a common grid.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -69,11 +70,33 @@ class RecordingWriter:
         recording is refused (:func:`refuse_existing`) unless ``overwrite``."""
         if not self.overwrite:
             refuse_existing(self.csv_path)
-        self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+        with self._disk(self.csv_path.parent, "make the folder"):
+            self.csv_path.parent.mkdir(parents=True, exist_ok=True)
         self._write_sidecar({"status": "recording"})
-        self._csv = open(self.csv_path, "w", encoding="ascii")  # noqa: SIM115 (kept open)
-        self._csv.write(",".join(["t", *(c.name for c in self.channels)]) + "\n")
-        self._sync()
+        with self._disk(self.csv_path, "write"):
+            self._csv = open(self.csv_path, "w", encoding="ascii")  # noqa: SIM115 (kept open)
+            try:
+                self._csv.write(",".join(["t", *(c.name for c in self.channels)]) + "\n")
+                self._sync()
+            except OSError:
+                self._close_csv()
+                raise
+
+    @contextlib.contextmanager
+    def _disk(self, path: Path, what: str) -> Iterator[None]:
+        """Turn a failed file operation into an :class:`AcquisitionError` naming the file,
+        the reason and what is on disk so far."""
+        try:
+            yield
+        except OSError as exc:
+            raise AcquisitionError(
+                f"{path}: cannot {what} ({exc.strerror or exc}); {self.rows_written} rows "
+                f"are on disk, {len(self._lines)} received rows are not") from None
+
+    @property
+    def rows_pending(self) -> int:
+        """Rows received but not yet on disk."""
+        return len(self._lines)
 
     def append(self, k: np.ndarray, values: np.ndarray) -> None:
         """Queue rows: grid indices ``k`` (n,) (t = k / rate) and values (n, n_channels)."""
@@ -100,11 +123,14 @@ class RecordingWriter:
         if self._csv is None:
             raise AcquisitionError(f"{self.csv_path}: start() the writer before writing rows")
         with self._lock:
-            lines, self._lines = self._lines, []
-        if lines:
-            self._csv.write("\n".join(lines) + "\n")
+            lines = self._lines[:]
+        with self._disk(self.csv_path, "write the rows"):
+            if lines:
+                self._csv.write("\n".join(lines) + "\n")
+            self._sync()
+        with self._lock:  # on disk: only now are they forgotten
+            del self._lines[:len(lines)]
             self.rows_written += len(lines)
-        self._sync()
 
     def flush(self, acquisition: dict[str, Any]) -> None:
         """Write the queued rows, then rewrite the sidecar with ``acquisition``."""
@@ -112,10 +138,20 @@ class RecordingWriter:
         self._write_sidecar(acquisition)
 
     def close(self, acquisition: dict[str, Any]) -> None:
-        """Last flush with the final ``acquisition``; the CSV is closed."""
-        self.flush(acquisition)
+        """Last flush with the final ``acquisition``; the CSV is closed. The sidecar is
+        written even when the rows cannot be (its ``rows`` says how many are on disk)."""
+        try:
+            self.write_rows()
+        finally:
+            try:
+                self._write_sidecar(acquisition)
+            finally:
+                self._close_csv()
+
+    def _close_csv(self) -> None:
         if self._csv is not None:
-            self._csv.close()
+            with contextlib.suppress(OSError):  # a write's error is the one raised
+                self._csv.close()
             self._csv = None
 
     def _sync(self) -> None:
@@ -134,11 +170,12 @@ class RecordingWriter:
                               metadata=self.metadata,
                               extra={"acquisition": acquisition, **attached})
             tmp = self.json_path.with_suffix(".json.tmp")
-            with open(tmp, "w", encoding="utf-8") as fh:
-                json.dump(empty.sidecar(), fh, indent=1)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, self.json_path)
+            with self._disk(self.json_path, "write the sidecar"):
+                with open(tmp, "w", encoding="utf-8") as fh:
+                    json.dump(empty.sidecar(), fh, indent=1)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.replace(tmp, self.json_path)
 
 
 def refuse_existing(path: str | Path) -> None:
@@ -244,9 +281,16 @@ def record(
                              overwrite=overwrite)
     merger = _Merger([len(s.channels) for s in streams])
     started = time.time()
-    writer.start()
+    try:
+        writer.start()
+    except AcquisitionError as exc:
+        for s in streams:
+            s.close()
+        with contextlib.suppress(AcquisitionError):  # say so where the sidecar can still go
+            writer._write_sidecar({"status": "failed", "failure": str(exc)})
+        raise
     last_flush = time.monotonic()
-    status = "interrupted"
+    status, failure = "interrupted", None
     stop_hook = on_start(t0, writer) if on_start is not None else None
     try:
         while not stop.is_set():
@@ -259,12 +303,25 @@ def record(
                 status = "complete"
                 break
             time.sleep(0.005)
+    except AcquisitionError as exc:  # the disk refused the rows: the recording stops here
+        status, failure = "failed", exc
     finally:
         if stop_hook is not None:
             stop_hook()
         _drain(streams, merger, writer, t0)
+        try:
+            writer.write_rows()
+        except AcquisitionError as exc:  # the disk still refuses: its latest words
+            status, failure = "failed", exc
         summary = _summary(streams, writer, status, started)
-        writer.close(summary)
+        if failure is not None:
+            summary["failure"] = str(failure)
+        try:
+            writer.close(summary)
+        except AcquisitionError as exc:
+            failure = exc
+    if failure is not None:
+        raise AcquisitionError(f"{failure}; the recording stopped there")
     return summary
 
 
@@ -303,9 +360,8 @@ def _flush(streams: Sequence[SensorStream], writer: RecordingWriter, started: fl
 
 def _drain(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
            t0: float) -> None:
-    """Close every stream, then merge and write what each had still buffered."""
+    """Close every stream, then merge what each had still buffered (written at close)."""
     for i, s in enumerate(streams):
         s.close()
         merger.add(i, *s.poll(t0))
     writer.append(*merger.ready(np.inf))
-    writer.write_rows()

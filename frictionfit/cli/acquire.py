@@ -8,6 +8,20 @@ from typing import Any
 import typer
 
 
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse, before any port is opened, an ``--out`` that holds a recording (unless
+    ``overwrite``) or where none can be written."""
+    from frictionfit.acquisition.recorder import refuse_existing
+    from frictionfit.cli._load import check_writable, make_folder
+    from frictionfit.recording import recording_paths
+
+    if not overwrite:
+        refuse_existing(out)
+    make_folder(out.parent, "--out")
+    for path in recording_paths(out):
+        check_writable(path, "--out")
+
+
 def _open_streams(ports: list[str], names: list[str] | None, rate: float, filter_code: int,
                   zero: bool, sensitivity: Path | None) -> list[Any]:
     from frictionfit.acquisition.stream import SensorStream
@@ -100,12 +114,13 @@ def acquire(
     loses what was in flight; the port is reopened when it comes back and the gap is
     listed in the sidecar's ``acquisition`` object. Ctrl-C or SIGTERM end cleanly.
     """
-    from frictionfit.acquisition.recorder import refuse_existing
     from frictionfit.errors import AcquisitionError
 
+    if duration < 0:
+        raise typer.BadParameter(f"must be >= 0 s (0: until Ctrl-C), got {duration:g}",
+                                 param_hint="--duration")
     try:
-        if not overwrite:
-            refuse_existing(out)
+        _check_out(out, overwrite)
         streams = _open_streams(port, name, rate, filter_code, zero, sensitivity)
         _run(streams, out, duration or None, quiet, {}, overwrite=overwrite)
     except AcquisitionError as exc:
@@ -157,7 +172,6 @@ def rub(
     ``motor_positions``; a failed read is counted and skipped.
     """
     from frictionfit.acquisition.protocol import ProtocolRunner, RubbingProtocol
-    from frictionfit.acquisition.recorder import refuse_existing
     from frictionfit.errors import AcquisitionError
 
     try:
@@ -168,8 +182,7 @@ def rub(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     try:
-        if not overwrite:
-            refuse_existing(out)
+        _check_out(out, overwrite)
         drive = _actuator(actuator, p1, servo_id, baud)
         try:
             drive.move_to(p1)
