@@ -74,7 +74,7 @@ def test_bad_crc_is_counted_and_skipped():
 
 @pytest.fixture
 def servo():
-    actuator = DynamixelActuator("loop://", 1)
+    actuator = DynamixelActuator("loop://", 1, limits=(0, 4095))
     yield actuator
     actuator.close()
 
@@ -107,7 +107,8 @@ def test_dynamixel_on_loop(servo):
 
 @pytest.mark.parametrize(("hexbytes", "words"), [
     ("FF FF FD 00 01 04 00 55 04 BA 8C", r"error 4 \(data range error\)"),
-    ("FF FF FD 00 01 04 00 55 80 A2 8F", "alert: hardware error latched"),
+    ("FF FF FD 00 01 04 00 55 80 A2 8F", "cannot WRITE 100 at 116: a hardware error is "
+     "latched"),
 ])
 def test_dynamixel_errors_in_words(servo, hexbytes, words):
     _answer(servo, bytes.fromhex(hexbytes))
@@ -147,6 +148,68 @@ def test_a_reply_with_a_bad_crc_is_a_timeout():
             with pytest.raises(AcquisitionError, match="no status from servo 1 for READ"):
                 servo.position()
             assert servo.parser.crc_errors == 1 and servo.position() == 1500.0
+        finally:
+            servo.close()
+
+
+@pytest.mark.parametrize(("mode", "limits", "expected"), [
+    (3, (100, 3000), (100, 3000)),  # position mode: the servo's own Min/Max Position Limit
+    (4, (0, 4095), (-1_048_575, 1_048_575)),  # extended position: +-256 turns
+    (5, (0, 4095), (-1_048_575, 1_048_575)),  # current-based position, a gripper's mode
+])
+def test_prepare_learns_the_limits_from_the_servo(mode, limits, expected):
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, speed=1e9, mode=mode, limits=limits) as fake:
+        servo = DynamixelActuator(fake.url)
+        try:
+            assert servo.prepare() == 1020 and servo.limits == expected
+            assert fake.table[64] == b"\x01"  # torque on
+            servo.move_to(-500 if mode != 3 else 2500)
+            assert servo.position() == (-500.0 if mode != 3 else 2500.0)
+            with pytest.raises(AcquisitionError, match=f"outside servo 1's limits "
+                               f"{expected[0]}..{expected[1]}"):
+                servo.move_to(expected[1] + 1)
+        finally:
+            servo.close()
+
+
+def test_a_servo_that_ignores_goal_positions_is_refused_in_words():
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(mode=1) as fake:
+        servo = DynamixelActuator(fake.url)
+        try:
+            with pytest.raises(AcquisitionError, match=r"servo 1 is in velocity control "
+                               r"\(Operating Mode 1\), where it ignores goal positions"):
+                servo.prepare()
+        finally:
+            servo.close()
+        assert fake.table[64] == b"\x00"  # the torque was left off
+
+
+def test_a_latched_overload_is_named():
+    from fake_dynamixel import FakeDynamixel
+
+    with FakeDynamixel(position=1000, overload_at_goal=1) as fake:
+        servo = DynamixelActuator(fake.url)
+        try:
+            servo.prepare()
+            with pytest.raises(AcquisitionError, match=(
+                    r"servo 1 cannot WRITE 1200 at 116: hardware error overload \(address 70 "
+                    r"= 0x20\); the servo may have switched its torque off")):
+                servo.move_to(1200)
+            with pytest.raises(AcquisitionError, match="cannot READ position: hardware error "
+                               "overload"):
+                servo.position()
+        finally:
+            servo.close()
+    with FakeDynamixel(limits=(0, 3000)) as fake:  # the servo refuses a goal itself
+        servo = DynamixelActuator(fake.url, limits=(0, 4095))
+        try:
+            with pytest.raises(AcquisitionError, match=r"refused WRITE 3500 at 116: error 6 "
+                               r"\(data limit error\)"):
+                servo.move_to(3500)
         finally:
             servo.close()
 

@@ -220,13 +220,25 @@ def test_position_rate_0_reads_no_position(tmp_path):
     assert result.exit_code == 2 and "--position-rate must be >= 0 Hz, got -1" in result.output
 
 
-def test_refused_command_is_an_event_and_an_error(tmp_path):
+def test_a_position_outside_the_servos_limits_is_refused_before_anything_moves(tmp_path):
     from fake_dynamixel import FakeDynamixel
 
-    with FakeDynamixel() as servo:
-        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "5000", "--motions", "1")
+    with FakeDynamixel(position=1000, limits=(0, 3000)) as servo:
+        result, sensor, rec = _rub_servo(tmp_path, servo, "--p2", "3500", "--motions", "1")
     assert result.exit_code == 1
-    assert "goal position 5000 is outside the servo's limits 0..4095" in result.output
+    assert "--p2: " in result.output and (
+        "goal position 3500 is outside servo 1's limits 0..3000 counts" in result.output)
+    assert servo.goals == [] and rec is None and not (tmp_path / "rub.json").exists()
+
+
+def test_a_command_the_servo_refuses_is_an_event_and_an_error(tmp_path):
+    from fake_dynamixel import FakeDynamixel
+
+    # the first move to p2 stalls the finger: the servo latches an overload
+    with FakeDynamixel(position=1000, overload_at_goal=2) as servo:
+        result, _, rec = _rub_servo(tmp_path, servo, "--p2", "1200", "--motions", "1")
+    assert result.exit_code == 1
+    assert "cannot WRITE 1200 at 116: hardware error overload" in result.output
     assert "the recording is kept" in result.output
     assert [(e.kind, e.target) for e in rec.events] == [("protocol_error", "p2")]
 

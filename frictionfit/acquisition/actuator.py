@@ -39,6 +39,10 @@ class Actuator(abc.ABC):
     def position(self) -> float:
         """The present position."""
 
+    def check(self, position: float) -> None:  # noqa: B027 - any position by default
+        """Raise :class:`~frictionfit.errors.AcquisitionError` for a position the drive
+        cannot be sent to, before anything moves."""
+
     def close(self) -> None:  # noqa: B027 - optional for actuators holding nothing
         """Release the hardware (nothing to do by default)."""
 
@@ -85,13 +89,26 @@ class SimulatedGripper(Actuator):
 
 
 #: Control-table addresses of the X series (reference section 7).
-TORQUE_ENABLE, GOAL_POSITION, PRESENT_POSITION = 64, 116, 132
+OPERATING_MODE, MAX_POSITION_LIMIT, MIN_POSITION_LIMIT = 11, 48, 52
+TORQUE_ENABLE, HARDWARE_ERROR_STATUS, GOAL_POSITION, PRESENT_POSITION = 64, 70, 116, 132
+_ITEMS = {OPERATING_MODE: "operating mode", MAX_POSITION_LIMIT: "max position limit",
+          MIN_POSITION_LIMIT: "min position limit", HARDWARE_ERROR_STATUS: "hardware error status",
+          PRESENT_POSITION: "position"}
+_FORMATS = {1: "<B", 2: "<h", 4: "<i"}
 _ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
            5: "data length error", 6: "data limit error", 7: "access error"}
+#: Hardware Error Status bits (reference section 6).
+_HARDWARE_ERRORS = {0: "input voltage", 2: "overheating", 3: "motor encoder",
+                    4: "electrical shock", 5: "overload"}
+#: Operating modes that follow Goal Position, with their range of goals in counts (reference
+#: section 8): 3 between the servo's own position limits, 4 and 5 over +-256 turns.
+_POSITION_MODES = {3: "position", 4: "extended position", 5: "current-based position"}
+_OTHER_MODES = {0: "current", 1: "velocity", 16: "PWM"}
+EXTENDED_RANGE = (-1_048_575, 1_048_575)
 
 
 class DynamixelActuator(Actuator):
-    """A Dynamixel X-series servo in position mode over Protocol 2.0.
+    """A Dynamixel X-series servo in a position mode over Protocol 2.0.
 
     Parameters
     ----------
@@ -101,8 +118,10 @@ class DynamixelActuator(Actuator):
         The servo's ID (factory 1).
     baudrate : int
         Factory 57 600.
-    limits : (int, int)
-        Allowed goal positions in counts (Min/Max Position Limit; 0-4095 by default).
+    limits : (int, int), optional
+        Allowed goal positions in counts. Without them, :meth:`prepare` reads them from
+        the servo: its Min/Max Position Limit in position mode (3), +-256 turns in
+        extended (4) and current-based (5) position mode.
     timeout_s : float
         How long to wait for a status packet.
     position_timeout_s : float
@@ -115,7 +134,7 @@ class DynamixelActuator(Actuator):
     counts_per_revolution = 4096
 
     def __init__(self, url: str, servo_id: int = 1, *, baudrate: int = 57_600,
-                 limits: tuple[int, int] = (0, 4095), timeout_s: float = 0.5,
+                 limits: tuple[int, int] | None = None, timeout_s: float = 0.5,
                  position_timeout_s: float = 0.05) -> None:
         self.url, self.servo_id, self.limits, self.timeout_s = url, servo_id, limits, timeout_s
         self.position_timeout_s = position_timeout_s
@@ -127,7 +146,7 @@ class DynamixelActuator(Actuator):
         self.parser = PacketParser()
 
     def _exchange(self, instruction: int, params: bytes, what: str,
-                  timeout_s: float | None = None) -> bytes:
+                  timeout_s: float | None = None, alert_ok: bool = False) -> bytes:
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
         try:
             # The servo speaks only when asked, so what waits now is a late reply to an
@@ -143,45 +162,80 @@ class DynamixelActuator(Actuator):
             for pkt in self.parser.feed(chunk):
                 if pkt.instruction != STATUS or pkt.id != self.servo_id:
                     continue  # our own echo on a half-duplex adapter, or another servo
-                if pkt.error:
-                    alert = " (alert: hardware error latched; read address 70, reboot)" if (
-                        pkt.error & 0x80) else ""
-                    number = pkt.error & 0x7F
+                number = pkt.error & 0x7F
+                if number:
                     raise AcquisitionError(
                         f"{self.url}: servo {self.servo_id} refused {what}: error {number} "
-                        f"({_ERRORS.get(number, 'unknown')}){alert}")
+                        f"({_ERRORS.get(number, 'unknown')})" + (
+                            f"; {self._hardware_error()}" if pkt.error & 0x80 else ""))
+                if pkt.error & 0x80 and not alert_ok:
+                    raise AcquisitionError(f"{self.url}: servo {self.servo_id} cannot "
+                                           f"{what}: {self._hardware_error()}")
                 return pkt.data
         raise AcquisitionError(f"{self.url}: no status from servo {self.servo_id} for {what} "
                                f"within {timeout_s} s (wrong ID, baud rate or protocol?)")
+
+    def _hardware_error(self) -> str:
+        """The latched hardware error (the alert bit of a status), in words."""
+        try:
+            bits = self.read(HARDWARE_ERROR_STATUS, 1, alert_ok=True)
+        except AcquisitionError as exc:
+            return f"a hardware error is latched (alert), and reading which failed: {exc}"
+        names = [name for bit, name in _HARDWARE_ERRORS.items() if bits & (1 << bit)] or [
+            f"unknown bits 0x{bits:02X}"]
+        return (f"hardware error {', '.join(names)} (address {HARDWARE_ERROR_STATUS} = "
+                f"0x{bits:02X}); the servo may have switched its torque off until it is "
+                "rebooted or power-cycled")
 
     def ping(self) -> int:
         """The model number (e.g. 1020 for an XM430-W350)."""
         return struct.unpack("<H", self._exchange(PING, b"", "PING")[:2])[0]
 
+    def read(self, address: int, size: int, timeout_s: float | None = None,
+             alert_ok: bool = False) -> int:
+        """Read the ``size``-byte value at a control-table ``address`` (1-byte items are
+        unsigned, 2- and 4-byte ones signed, as in the X series' table)."""
+        what = f"READ {_ITEMS.get(address, address)}"
+        data = self._exchange(READ, struct.pack("<HH", address, size), what, timeout_s,
+                              alert_ok)
+        if len(data) != size:
+            raise AcquisitionError(f"{self.url}: {what} replied {len(data)} bytes, not {size}")
+        return struct.unpack(_FORMATS[size], data)[0]
+
     def write(self, address: int, value: int, size: int) -> None:
-        """Write a ``size``-byte signed value at a control-table ``address``."""
-        fmt = {1: "<b", 2: "<h", 4: "<i"}[size]
-        self._exchange(WRITE, struct.pack("<H", address) + struct.pack(fmt, value),
+        """Write a ``size``-byte value at a control-table ``address`` (signs as :meth:`read`)."""
+        self._exchange(WRITE, struct.pack("<H", address) + struct.pack(_FORMATS[size], value),
                        f"WRITE {value} at {address}")
 
-    def enable(self) -> None:
-        """Switch the torque on (the servo holds and moves)."""
+    def prepare(self) -> int:
+        """Ping, check that the servo follows goal positions, learn its limits (unless
+        given), switch the torque on; return the model number."""
+        model = self.ping()
+        mode = self.read(OPERATING_MODE, 1)
+        if mode not in _POSITION_MODES:
+            raise AcquisitionError(
+                f"{self.url}: servo {self.servo_id} is in {_OTHER_MODES.get(mode, 'unknown')} "
+                f"control (Operating Mode {mode}), where it ignores goal positions; set mode "
+                f"3, 4 or 5 ({', '.join(_POSITION_MODES.values())})")
+        if self.limits is None:
+            self.limits = (self.read(MIN_POSITION_LIMIT, 4), self.read(MAX_POSITION_LIMIT, 4)
+                           ) if mode == 3 else EXTENDED_RANGE
         self.write(TORQUE_ENABLE, 1, 1)
+        return model
 
-    def move_to(self, position: float) -> None:
-        lo, hi = self.limits
+    def check(self, position: float) -> None:
+        lo, hi = self.limits if self.limits is not None else EXTENDED_RANGE
         goal = int(round(position))
         if not lo <= goal <= hi:
-            raise AcquisitionError(f"{self.url}: goal position {goal} is outside the servo's "
-                                   f"limits {lo}..{hi} counts")
-        self.write(GOAL_POSITION, goal, 4)
+            raise AcquisitionError(f"{self.url}: goal position {goal} is outside servo "
+                                   f"{self.servo_id}'s limits {lo}..{hi} counts")
+
+    def move_to(self, position: float) -> None:
+        self.check(position)
+        self.write(GOAL_POSITION, int(round(position)), 4)
 
     def position(self) -> float:
-        data = self._exchange(READ, struct.pack("<HH", PRESENT_POSITION, 4), "READ position",
-                              self.position_timeout_s)
-        if len(data) != 4:
-            raise AcquisitionError(f"{self.url}: position reply has {len(data)} bytes, not 4")
-        return float(struct.unpack("<i", data)[0])
+        return float(self.read(PRESENT_POSITION, 4, self.position_timeout_s))
 
     def close(self) -> None:
         self.port.close()

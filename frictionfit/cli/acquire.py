@@ -128,15 +128,21 @@ def acquire(
         raise typer.Exit(1) from None
 
 
-def _actuator(spec: str, p1: float, servo_id: int, baud: int) -> Any:
+def _actuator(spec: str, p1: float, p2: float, servo_id: int, baud: int) -> Any:
+    """The drive, ready to move, with both positions checked against its limits."""
     from frictionfit.acquisition.actuator import DynamixelActuator, SimulatedGripper
+    from frictionfit.errors import AcquisitionError
 
     if spec == "sim":
         return SimulatedGripper(p1)
     servo = DynamixelActuator(spec, servo_id, baudrate=baud)
     try:
-        servo.ping()
-        servo.enable()
+        servo.prepare()
+        for option, position in (("--p1", p1), ("--p2", p2)):
+            try:
+                servo.check(position)
+            except AcquisitionError as exc:
+                raise AcquisitionError(f"{option}: {exc}") from None
     except Exception:
         servo.close()
         raise
@@ -183,7 +189,7 @@ def rub(
         raise typer.Exit(2) from None
     try:
         _check_out(out, overwrite)
-        drive = _actuator(actuator, p1, servo_id, baud)
+        drive = _actuator(actuator, p1, p2, servo_id, baud)
         try:
             drive.move_to(p1)
             streams = _open_streams(sensor, name, rate, 0, False, sensitivity)
