@@ -63,11 +63,16 @@ class FakeOptoForce:
         Corrupt every n-th configured frame (0: never).
     garbage_every : int
         Put 1-20 garbage bytes (never a start byte) before every n-th frame (0: never).
+    rate_error : float
+        Relative error of the DAQ's clock (0.01: its frames come 1 % faster than the
+        configured rate, by the host's clock).
     """
 
     def __init__(self, path: Path, *, serial: str = "ISE0A129",
                  source: Callable[[int], tuple[int, ...]] | None = None,
-                 corrupt_every: int = 0, garbage_every: int = 0, seed: int = 0) -> None:
+                 corrupt_every: int = 0, garbage_every: int = 0, seed: int = 0,
+                 rate_error: float = 0.0) -> None:
+        self.rate_error = rate_error
         self.path = Path(path)
         self.serial = serial
         self.source = source or noisy_counts(seed)
@@ -142,7 +147,8 @@ class FakeOptoForce:
     def _emit(self) -> None:
         if self._speed == 0:
             return
-        due = int((time.monotonic() - self._t_stream) * 1000.0 / self._speed)
+        due = int((time.monotonic() - self._t_stream) * 1000.0 / self._speed
+                  * (1 + self.rate_error))
         while self._emitted < due:
             self._emitted += 1
             self._counter = (self._counter + self._speed) & 0xFFFF

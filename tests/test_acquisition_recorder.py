@@ -224,6 +224,26 @@ def test_a_disk_that_refuses_the_first_row_is_said_before_any_sample(tmp_path):
     assert sidecar["acquisition"]["status"] == "failed"
 
 
+def test_a_sensor_back_after_a_pulled_cable_never_writes_behind_the_others_rows(tmp_path):
+    # b's clock runs 5 % fast: after 1.4 s its rows are ~70 samples ahead of the host's
+    # clock, by which a's new link is placed
+    with FakeOptoForce(tmp_path / "a") as fa, FakeOptoForce(tmp_path / "b", rate_error=0.05):
+        streams = [SensorStream(str(tmp_path / n), n, 1000) for n in "ab"]
+        for s in streams:
+            s.connect()
+        timers = [threading.Timer(0.8, fa.disconnect), threading.Timer(1.4, fa.reconnect)]
+        for timer in timers:
+            timer.start()
+        acq = record(streams, tmp_path / "rec", duration_s=2.5)
+        for timer in timers:
+            timer.join()
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    assert acq["sensors"][0]["reconnects"] == 1
+    assert np.all(np.diff(rec.t) > 0)  # every row once, in time order
+    a_back = np.isfinite(rec.samples[:, 0]) & (rec.t > 1.2)
+    assert a_back.sum() > 500  # a's samples after the reconnection are kept
+
+
 def test_two_ports_share_one_grid(tmp_path):
     with FakeOptoForce(tmp_path / "a", seed=1) as fa, FakeOptoForce(tmp_path / "b", seed=2):
         result = CliRunner().invoke(app, [

@@ -197,6 +197,7 @@ class _Merger:
     def __init__(self, widths: Sequence[int]) -> None:
         self.offsets = np.cumsum([0, *widths])
         self.rows: dict[int, np.ndarray] = {}
+        self.next_k = 0  # the first grid index not yet handed out as a row
 
     def add(self, i: int, ks: np.ndarray, values: np.ndarray) -> None:
         lo, hi = self.offsets[i], self.offsets[i + 1]
@@ -210,6 +211,8 @@ class _Merger:
         """Rows with ``k < horizon``, in order, removed from the merger."""
         ks = sorted(k for k in self.rows if k < horizon)
         values = np.array([self.rows.pop(k) for k in ks]).reshape(len(ks), self.offsets[-1])
+        if ks:
+            self.next_k = ks[-1] + 1
         return np.asarray(ks, dtype=np.int64), values
 
 
@@ -345,7 +348,7 @@ def _merge_polled(streams: Sequence[SensorStream], merger: _Merger, writer: Reco
                   t0: float) -> None:
     """Poll every stream and append the rows every connected stream has passed."""
     for i, s in enumerate(streams):
-        merger.add(i, *s.poll(t0))
+        merger.add(i, *s.poll(t0, merger.next_k))
     live = [s.last_k for s in streams if s.connected and s.last_k is not None]
     writer.append(*merger.ready(min(live) + 1 if live else np.inf))
 
@@ -363,5 +366,5 @@ def _drain(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWr
     """Close every stream, then merge what each had still buffered (written at close)."""
     for i, s in enumerate(streams):
         s.close()
-        merger.add(i, *s.poll(t0))
+        merger.add(i, *s.poll(t0, merger.next_k))
     writer.append(*merger.ready(np.inf))

@@ -169,9 +169,11 @@ class SensorStream:
         else:
             self.gaps_unlisted += 1
 
-    def _start_index(self, t0: float) -> int:
+    def _start_index(self, t0: float, floor: int) -> int:
+        """Grid index of a link's first frame: its arrival on the host clock, but after
+        this stream's last sample and no earlier than ``floor``."""
         arrival = self.first_frame_time
-        k = max(round((arrival - t0) * self.rate_hz), 0) if arrival is not None else 0
+        k = max(round((arrival - t0) * self.rate_hz), floor) if arrival is not None else floor
         if self.last_k is None:
             return k
         k = max(k, self.last_k + 1)
@@ -180,34 +182,38 @@ class SensorStream:
                       f"link lost ({self._down_reason}); reconnected")
         return k
 
-    def poll(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    def poll(self, t0: float, floor: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """New samples: indices ``k`` (n,) on the grid started at host time ``t0``, values (n, c).
 
         Values are in the channels' units; frames whose status flags a DAQ or sensor
         error become NaN rows (counted in ``frames_flagged``). When the link has ended,
-        the frames it received are numbered on it before the port is reopened.
+        the frames it received are numbered on it before the port is reopened. A new
+        link starts at ``floor`` or later: the first row not yet written, when other
+        sensors' rows went on while this one was away (their clocks drift from the
+        host's by tens of ms an hour).
         """
         frames, self._pending = self._pending, []
         ended = []
         if self._link_ended():
             assert self.sensor is not None
-            ended.append(self._number(frames + self.sensor.frames(), t0))
+            ended.append(self._number(frames + self.sensor.frames(), t0, floor))
             frames = []
             self._down_reason, self._down_since = self.sensor.error or "", self.clock()
             self._retire()
         self._reconnect_if_due()
         if self.sensor is not None:
             frames += self.sensor.frames()
-        ks, values = zip(*ended, self._number(frames, t0), strict=True)
+        ks, values = zip(*ended, self._number(frames, t0, floor), strict=True)
         return np.concatenate(ks), np.concatenate(values)
 
-    def _number(self, frames: list[DataFrame], t0: float) -> tuple[np.ndarray, np.ndarray]:
+    def _number(self, frames: list[DataFrame], t0: float, floor: int
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Grid indices (n,) and values (n, c) of one link's ``frames``, in order."""
         ks = np.empty(len(frames), dtype=np.int64)
         values = np.empty((len(frames), len(self.channels)))
         for i, f in enumerate(frames):
             if self._new_link:
-                k = self._start_index(t0)
+                k = self._start_index(t0, floor)
                 self._new_link = False
             else:
                 k = self.last_k + 1 + f.lost_before
