@@ -211,6 +211,9 @@ def test_a_full_disk_stops_the_recording_in_words_and_the_sidecar_says_so(tmp_pa
     acq = rec.extra["acquisition"]
     assert acq["status"] == "failed" and "No space left on device" in acq["failure"]
     assert acq["rows"] == rec.n_samples and 300 < rec.n_samples < 1000
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "rec")])
+    assert (f"acquisition: failed ({acq['failure']}): {rec.n_samples} rows in the CSV"
+            in info.output)
 
 
 def test_a_disk_that_refuses_the_first_row_is_said_before_any_sample(tmp_path):

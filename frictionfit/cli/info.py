@@ -54,6 +54,9 @@ def _recording(path: Path) -> None:
     if isinstance(acq, dict) and acq.get("status") == "recording":
         typer.echo(f"acquisition: interrupted (status 'recording'): {rec.n_samples} rows in the "
                    f"CSV, the sidecar last counted {acq.get('rows', '?')}")
+    elif isinstance(acq, dict) and acq.get("status") == "failed":
+        typer.echo(f"acquisition: failed ({acq.get('failure', 'no reason kept')}): "
+                   f"{rec.n_samples} rows in the CSV")
     if rec.extra:
         typer.echo(f"other sidecar keys: {sorted(rec.extra)}")
     for p in rec.problems:
