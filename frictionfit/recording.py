@@ -35,6 +35,7 @@ __all__ = [
     "Event",
     "Problem",
     "Recording",
+    "check_channel_names",
     "check_newtons",
     "kept_per_recording",
     "read_dataset",
@@ -65,6 +66,22 @@ class Channel:
 
     name: str
     unit: str
+
+
+def check_channel_names(names: Sequence[str]) -> None:
+    """ValueError unless each name can head a CSV column of its own and be read back:
+    non-empty, unique, not ``t`` (the time column), with no comma, quote or line break,
+    and no space at either end."""
+    seen = set()
+    for name in names:
+        bad = ("is empty" if not name else "is the time column's" if name == "t" else
+               "holds a comma, quote or line break" if set(name) & set(',"\r\n') else
+               "starts or ends with a space" if name != name.strip() else
+               "appears twice" if name in seen else None)
+        if bad is not None:
+            raise ValueError(f"channel name {name!r} {bad}: each channel needs a name of its "
+                             "own that a CSV header can hold")
+        seen.add(name)
 
 
 @dataclass(frozen=True)
@@ -166,6 +183,10 @@ class Recording:
                 f"{len(self.channels)} channels named but samples have {samples.shape[1]} columns",
                 path=self.name,
             )
+        try:
+            check_channel_names([c.name for c in self.channels])
+        except ValueError as exc:
+            raise RecordingError(str(exc), path=self.name) from None
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "samples", samples)
         object.__setattr__(self, "channels", tuple(self.channels))

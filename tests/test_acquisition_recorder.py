@@ -288,6 +288,9 @@ def test_acquire_bad_port_exits_in_words(tmp_path):
 @pytest.mark.parametrize(("options", "words"), [
     (["--out", "{tmp}/file/rec"], "--out: {tmp}/file: cannot make the folder"),
     (["--out", "{tmp}/rec", "--duration", "-1"], "--duration: must be >= 0 s"),
+    (["--out", "{tmp}/rec", "--name", "thumb", "--port", "{tmp}/b", "--name", "thumb"],
+     "--name: channel name 'thumb' appears twice"),
+    (["--out", "{tmp}/rec", "--name", "a,b"], "--name: channel name 'a,b' holds a comma"),
 ])
 def test_acquire_refuses_its_options_before_opening_a_port(tmp_path, options, words):
     (tmp_path / "file").write_text("a file where a folder should be")

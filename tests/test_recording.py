@@ -172,6 +172,18 @@ def test_bad_input_names_file_channel_and_problem(tmp_path, rng, mutate_csv, mut
         read_recording(path)
 
 
+@pytest.mark.parametrize(("names", "words"), [
+    (["a", "a"], "channel name 'a' appears twice"),
+    (["a,b", "c"], "channel name 'a,b' holds a comma, quote or line break"),
+    (["t", "c"], "channel name 't' is the time column's"),
+    ([" a", "c"], "channel name ' a' starts or ends with a space"),
+    (["", "c"], "channel name '' is empty"),
+])
+def test_channel_names_a_csv_cannot_hold_back_are_refused(tmp_path, names, words):
+    with pytest.raises(RecordingError, match=words):
+        Recording.from_arrays(np.zeros((3, 2)), 1000.0, names)
+
+
 def test_nan_samples_are_listed_not_raised_a_lab_link_loses_samples(tmp_path, rng):
     rec = read_recording(_write_bad(tmp_path, rng, mutate_csv=_nan_in_index_x))
     assert [str(p) for p in rec.problems] == [

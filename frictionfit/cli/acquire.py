@@ -25,11 +25,16 @@ def _check_out(out: Path, overwrite: bool) -> None:
 def _open_streams(ports: list[str], names: list[str] | None, rate: float, filter_code: int,
                   zero: bool, sensitivity: Path | None) -> list[Any]:
     from frictionfit.acquisition.stream import SensorStream
+    from frictionfit.recording import check_channel_names
 
     names = names or [f"s{i + 1}" for i in range(len(ports))]
     if len(names) != len(ports):
-        typer.echo(f"error: {len(names)} --name for {len(ports)} ports", err=True)
-        raise typer.Exit(2)
+        raise typer.BadParameter(f"{len(names)} --name for {len(ports)} ports",
+                                 param_hint="--name")
+    try:
+        check_channel_names(names)  # unique, CSV-safe prefixes make unique, CSV-safe columns
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--name") from None
     streams = [SensorStream(port, name, rate, filter_code=filter_code, zero=zero,
                             sensitivity=sensitivity) for port, name in zip(ports, names,
                                                                            strict=True)]
