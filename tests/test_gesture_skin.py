@@ -126,7 +126,7 @@ def test_malformed_interchange_names_file_and_channel(tmp_path, names, units, ma
 
 
 def test_duplicate_taxel_in_memory():
-    rec = Recording.from_arrays(np.ones((3, 2)), 50.0, ["r0c0", "r0c0"], units="kPa", name="dup")
+    rec = Recording.from_arrays(np.ones((3, 2)), 50.0, ["r0c0", "r00c0"], units="kPa", name="dup")
     with pytest.raises(RecordingError, match=r"dup: channel 'r0c0': taxel appears twice"):
         frames_of(rec)
 
