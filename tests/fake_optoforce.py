@@ -121,6 +121,19 @@ class FakeOptoForce:
         with self._lock:
             self._plug()
 
+    def pause(self, seconds: float) -> None:
+        """Send nothing for ``seconds``, the counter standing still (blocks that long)."""
+        with self._lock:
+            speed, self._speed = self._speed, 0
+        time.sleep(seconds)
+        with self._lock:
+            self._speed, self._t_stream, self._emitted = speed, time.monotonic(), 0
+
+    def set_counter(self, counter: int) -> None:
+        """Jump the sample counter to ``counter``, as a DAQ that restarted would."""
+        with self._lock:
+            self._counter = counter & 0xFFFF
+
     def __enter__(self) -> FakeOptoForce:
         self._plug()
         self._thread = threading.Thread(target=self._run, name="fake optoforce", daemon=True)

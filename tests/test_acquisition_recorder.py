@@ -5,6 +5,7 @@ corrupted on purpose and garbage between frames.
 """
 
 import errno
+import itertools
 import json
 import os
 import signal
@@ -245,6 +246,57 @@ def test_a_sensor_back_after_a_pulled_cable_never_writes_behind_the_others_rows(
     assert np.all(np.diff(rec.t) > 0)  # every row once, in time order
     a_back = np.isfinite(rec.samples[:, 0]) & (rec.t > 1.2)
     assert a_back.sum() > 500  # a's samples after the reconnection are kept
+
+
+def _two_sensors_with(tmp_path, fault, at_s=0.8, duration_s=3.0):
+    """Record sensors a and b (a's Fx is its frame number, b's minus its own) while
+    ``fault(fake_a)`` runs at ``at_s``; the acquisition summary and the recording."""
+    with FakeOptoForce(tmp_path / "a", source=lambda k: (k % 30000, 7, 9)) as fa, \
+            FakeOptoForce(tmp_path / "b", source=lambda k: (-(k % 30000), 5, 3)):
+        streams = [SensorStream(str(tmp_path / n), n, 1000) for n in "ab"]
+        for s in streams:
+            s.connect()
+        timer = threading.Timer(at_s, fault, (fa,))
+        timer.start()
+        acq = record(streams, tmp_path / "rec", duration_s=duration_s)
+        timer.join()
+    return acq, read_recording(tmp_path / "rec", on_error="flag")
+
+
+def test_a_silent_sensor_holds_back_the_others_rows_one_second_at_most(tmp_path):
+    rows = []
+
+    def pause_and_watch(fake):
+        csv = tmp_path / "rec.csv"
+        watch = threading.Thread(target=lambda: [
+            (rows.append(csv.read_text().count("\n")), time.sleep(0.1)) for _ in range(25)])
+        watch.start()
+        fake.pause(2.0)
+        watch.join()
+
+    acq, rec = _two_sensors_with(tmp_path, pause_and_watch, duration_s=4.0)
+    # rows reach the disk again within ~1 s of the silence (SILENT_S), not after it
+    stuck = max(sum(1 for _ in group) for _, group in itertools.groupby(rows))
+    assert stuck <= 14, rows
+    (gap,) = acq["gaps"]
+    assert gap["sensor"] == "a" and "fell silent for 2" in gap["cause"]
+    assert 1900 < gap["samples"] < 2100
+    # a's frames after the silence are placed by their arrival, beside b's of that moment
+    a, b = rec.samples[:, 0], rec.samples[:, 3]
+    after = np.isfinite(a) & (rec.t > 3.0)
+    assert after.sum() > 500
+    lag = rec.t[after][0] - rec.t[np.flatnonzero(b == -a[after][0] - 2000)][0]
+    assert abs(lag) < 0.05  # b's frame of the same moment: 2000 frames further on
+    assert np.all(np.diff(rec.t) > 0)
+
+
+def test_a_counter_that_restarts_is_placed_by_the_host_clock(tmp_path):
+    acq, rec = _two_sensors_with(tmp_path, lambda fake: fake.set_counter(40_000))
+    (gap,) = [g for g in acq["gaps"] if g["sensor"] == "a"]
+    assert "counter jumped" in gap["cause"] and "restarted?" in gap["cause"]
+    assert gap["samples"] < 50  # not the 39 s the counter claims
+    assert rec.t[-1] < 3.2 and np.all(np.diff(rec.t) > 0)
+    assert np.isfinite(rec.samples[:, 0]).mean() > 0.95
 
 
 def test_two_ports_share_one_grid(tmp_path):

@@ -346,10 +346,11 @@ def _first_frames(streams: Sequence[SensorStream]) -> tuple[float, float]:
 
 def _merge_polled(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
                   t0: float) -> None:
-    """Poll every stream and append the rows every connected stream has passed."""
+    """Poll every stream and append the rows every connected stream has passed (one silent
+    for :data:`~frictionfit.acquisition.stream.SILENT_S` holds back nothing)."""
     for i, s in enumerate(streams):
         merger.add(i, *s.poll(t0, merger.next_k))
-    live = [s.last_k for s in streams if s.connected and s.last_k is not None]
+    live = [s.last_k for s in streams if s.connected and not s.silent and s.last_k is not None]
     writer.append(*merger.ready(min(live) + 1 if live else np.inf))
 
 

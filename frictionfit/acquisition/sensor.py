@@ -114,7 +114,7 @@ class OptoForceSensor:
         self.frames_overflow = 0
         self.frames_before_config = 0
         self._carry = 0  # samples dropped on a full queue, added to the next frame's lost_before
-        self._queue: queue.Queue[DataFrame] = queue.Queue(queue_size)
+        self._queue: queue.Queue[tuple[float, DataFrame]] = queue.Queue(queue_size)
         self._backlog: list[Message] = []
         self._thread: threading.Thread | None = None
         self._halt = threading.Event()
@@ -227,7 +227,7 @@ class OptoForceSensor:
                 if self._carry:
                     msg = replace(msg, lost_before=msg.lost_before + self._carry)
                 try:
-                    self._queue.put_nowait(msg)
+                    self._queue.put_nowait((now, msg))
                     self._carry = 0
                 except queue.Full:
                     self.frames_overflow += 1
@@ -238,14 +238,19 @@ class OptoForceSensor:
         """True while the reader thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
-    def frames(self) -> list[DataFrame]:
-        """Every frame queued so far, oldest first (non-blocking)."""
+    def received(self) -> list[tuple[float, DataFrame]]:
+        """Every frame queued so far with the host time it arrived (``time.monotonic()``,
+        s), oldest first (non-blocking)."""
         out = []
         while True:
             try:
                 out.append(self._queue.get_nowait())
             except queue.Empty:
                 return out
+
+    def frames(self) -> list[DataFrame]:
+        """Every frame queued so far, oldest first (non-blocking)."""
+        return [frame for _, frame in self.received()]
 
     def stop(self, filter_code: int = 0) -> None:
         """Ask the DAQ to stop streaming, read until its acknowledge, stop the thread.

@@ -25,6 +25,13 @@ __all__ = ["Gap", "SensorStream"]
 
 #: At most this many gaps are listed per sensor; the rest are only counted.
 MAX_GAPS_LISTED = 1000
+#: A connected sensor silent this long (s) no longer holds back the other sensors' rows.
+SILENT_S = 1.0
+#: A frame whose counter moved on this much more (s) than the host clock since the
+#: previous frame cannot have been sampled yet: the counter restarted, and the frame is
+#: placed by its arrival. (Between frames the host clock runs ahead when frames wait;
+#: the counter never can, whatever the clocks' drift.)
+AHEAD_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -82,7 +89,8 @@ class SensorStream:
         self.first_k: int | None = None
         self.last_k: int | None = None
         self._done = {"corrupted": 0, "discarded": 0, "overflow": 0}
-        self._pending: list[DataFrame] = []
+        self._pending: list[tuple[float, DataFrame]] = []
+        self.last_arrival: float | None = None
         self._down_since: float | None = None
         self._down_reason = ""
         self._last_try = -math.inf
@@ -113,12 +121,12 @@ class SensorStream:
         assert self.sensor is not None, "connect() first"
         deadline = self.clock() + timeout_s
         while not self._pending and self.clock() < deadline:
-            self._pending = self.sensor.frames()
+            self._pending = self.sensor.received()
             time.sleep(0.002)
         if not self._pending:
             raise AcquisitionError(f"{self.url}: configured, but no data frame within "
                                    f"{timeout_s} s")
-        n = len(self._pending[0].counts)
+        n = len(self._pending[0][1].counts)
         per_unit = self.sensor.counts_per_unit(self.sensitivity, n)
         self.scale = None if per_unit is None else 1.0 / np.asarray(per_unit)
         axes = axis_names(n)
@@ -134,6 +142,12 @@ class SensorStream:
     @property
     def connected(self) -> bool:
         return self._down_since is None
+
+    @property
+    def silent(self) -> bool:
+        """Connected, but no frame for :data:`SILENT_S` (the DAQ stopped sending)."""
+        return (self.connected and self.last_arrival is not None
+                and self.clock() - self.last_arrival > SILENT_S)
 
     def _retire(self) -> None:
         """Keep the counts of a link that ended, and close it."""
@@ -169,17 +183,16 @@ class SensorStream:
         else:
             self.gaps_unlisted += 1
 
-    def _start_index(self, t0: float, floor: int) -> int:
-        """Grid index of a link's first frame: its arrival on the host clock, but after
-        this stream's last sample and no earlier than ``floor``."""
-        arrival = self.first_frame_time
-        k = max(round((arrival - t0) * self.rate_hz), floor) if arrival is not None else floor
+    def _start_index(self, arrival: float, t0: float, floor: int, cause: str) -> int:
+        """Grid index of a frame that starts a stretch (a new link, a restarted counter):
+        its ``arrival`` on the host clock, but after this stream's last sample and no
+        earlier than ``floor``; the samples skipped are a gap for ``cause`` (listed even
+        when none is, so the break is on record)."""
+        k = max(round((arrival - t0) * self.rate_hz), floor)
         if self.last_k is None:
             return k
         k = max(k, self.last_k + 1)
-        if k > self.last_k + 1:
-            self._gap(self.last_k + 1, k - self.last_k - 1,
-                      f"link lost ({self._down_reason}); reconnected")
+        self._gap(self.last_k + 1, k - self.last_k - 1, cause)
         return k
 
     def poll(self, t0: float, floor: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -190,45 +203,62 @@ class SensorStream:
         the frames it received are numbered on it before the port is reopened. A new
         link starts at ``floor`` or later: the first row not yet written, when other
         sensors' rows went on while this one was away (their clocks drift from the
-        host's by tens of ms an hour).
+        host's by tens of ms an hour); so does a frame after a silence whose counter
+        would put it among rows already written (the DAQ's counter stopped with it), and
+        one whose counter jumped :data:`AHEAD_S` further than the host clock (restarted).
         """
-        frames, self._pending = self._pending, []
+        received, self._pending = self._pending, []
         ended = []
         if self._link_ended():
             assert self.sensor is not None
-            ended.append(self._number(frames + self.sensor.frames(), t0, floor))
-            frames = []
+            ended.append(self._number(received + self.sensor.received(), t0, floor))
+            received = []
             self._down_reason, self._down_since = self.sensor.error or "", self.clock()
             self._retire()
         self._reconnect_if_due()
         if self.sensor is not None:
-            frames += self.sensor.frames()
-        ks, values = zip(*ended, self._number(frames, t0, floor), strict=True)
+            received += self.sensor.received()
+        ks, values = zip(*ended, self._number(received, t0, floor), strict=True)
         return np.concatenate(ks), np.concatenate(values)
 
-    def _number(self, frames: list[DataFrame], t0: float, floor: int
+    def _index(self, arrival: float, f: DataFrame, t0: float, floor: int) -> int:
+        """Grid index of frame ``f``: by its counter, unless the host clock rules it out."""
+        if self._new_link:
+            self._new_link = False
+            return self._start_index(arrival, t0, floor,
+                                     f"link lost ({self._down_reason}); reconnected")
+        k = self.last_k + 1 + f.lost_before
+        assert self.last_arrival is not None  # set with last_k
+        ahead = (k - self.last_k) / self.rate_hz - (arrival - self.last_arrival)
+        if ahead > AHEAD_S:
+            return self._start_index(arrival, t0, floor, f"the DAQ's counter jumped "
+                                     f"{ahead:.1f} s further than the host clock "
+                                     "(restarted?)")
+        if k < floor:
+            silence = arrival - (self.last_arrival or arrival)
+            return self._start_index(arrival, t0, floor, f"the DAQ fell silent for "
+                                     f"{silence:.2f} s and its counter with it")
+        if f.lost_before:
+            self._gap(self.last_k + 1, f.lost_before, "counter gap (corrupted or dropped "
+                      "frames)")
+        return k
+
+    def _number(self, received: list[tuple[float, DataFrame]], t0: float, floor: int
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Grid indices (n,) and values (n, c) of one link's ``frames``, in order."""
-        ks = np.empty(len(frames), dtype=np.int64)
-        values = np.empty((len(frames), len(self.channels)))
-        for i, f in enumerate(frames):
-            if self._new_link:
-                k = self._start_index(t0, floor)
-                self._new_link = False
-            else:
-                k = self.last_k + 1 + f.lost_before
-                if f.lost_before:
-                    self._gap(self.last_k + 1, f.lost_before, "counter gap (corrupted or "
-                              "dropped frames)")
-            ks[i] = self.last_k = k
+        """Grid indices (n,) and values (n, c) of one link's frames, in order."""
+        ks = np.empty(len(received), dtype=np.int64)
+        values = np.empty((len(received), len(self.channels)))
+        for i, (arrival, f) in enumerate(received):
+            ks[i] = self.last_k = self._index(arrival, f, t0, floor)
+            self.last_arrival = arrival
             if self.first_k is None:
-                self.first_k = k
+                self.first_k = self.last_k
             values[i] = f.counts if f.valid else np.nan
             self.frames_flagged += not f.valid
             self.frames_overloaded += bool(f.overloaded)
         if self.scale is not None:
             values *= self.scale
-        self.frames_received += len(frames)
+        self.frames_received += len(received)
         return ks, values
 
     def close(self) -> None:
@@ -239,7 +269,7 @@ class SensorStream:
         self._closed = True
         if self.sensor is not None:
             self.sensor.stop(self.filter_code)
-            self._pending += self.sensor.frames()
+            self._pending += self.sensor.received()
         self._retire()
 
     # -- report ----------------------------------------------------------------
@@ -267,6 +297,7 @@ class SensorStream:
                 live.frames_overflow if live is not None else 0),
             "reconnects": self.reconnects,
             "connected": self.connected,
+            "silent": self.silent,
             "rate_hz_achieved": round(self.frames_received / span, 3) if span else 0.0,
             "gaps": [g.to_json() for g in self.gaps],
             "gaps_unlisted": self.gaps_unlisted,

@@ -57,10 +57,12 @@ def _progress(quiet: bool, duration: float | None):
                 for s in sensors)
         total = f"/{duration:g}" if duration else ""
         down = [s["name"] for s in sensors if not s["connected"]]
+        silent = [s["name"] for s in sensors if s["silent"]]
         sys.stderr.write(
             f"\r{t:7.1f}{total} s  rows {acq['rows']}  {acq['rate_hz_achieved']:.0f} Hz  "
             f"corrupted {acq['frames_corrupted']}  lost {acq['samples_lost']}"
-            + (f"  DISCONNECTED {','.join(down)}" if down else "") + "   ")
+            + (f"  DISCONNECTED {','.join(down)}" if down else "")
+            + (f"  SILENT {','.join(silent)}" if silent else "") + "   ")
         sys.stderr.flush()
 
     return None if quiet else show
