@@ -290,6 +290,24 @@ def test_a_silent_sensor_holds_back_the_others_rows_one_second_at_most(tmp_path)
     assert np.all(np.diff(rec.t) > 0)
 
 
+def test_a_lone_sensor_silent_with_its_counter_keeps_its_time_line(tmp_path):
+    with FakeOptoForce(tmp_path / "a", source=lambda k: (k % 30000, 7, 9)) as fake:
+        stream = SensorStream(str(tmp_path / "a"), "a", 1000)
+        stream.connect()
+        timer = threading.Timer(0.8, fake.pause, (1.5,))
+        timer.start()
+        acq = record([stream], tmp_path / "rec", duration_s=3.5)
+        timer.join()
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    (gap,) = acq["gaps"]
+    assert "fell silent for 1.5" in gap["cause"] and 1400 < gap["samples"] < 1600
+    frame = rec.samples[:, 0]
+    before, after = rec.t < 0.7, rec.t > 2.5
+    np.testing.assert_allclose(rec.t[before] - frame[before] / 1000, 0, atol=0.01)
+    # frames sent after the silence are 1.5 s later than their numbers say
+    np.testing.assert_allclose(rec.t[after] - frame[after] / 1000, 1.5, atol=0.05)
+
+
 def test_a_counter_that_restarts_is_placed_by_the_host_clock(tmp_path):
     acq, rec = _two_sensors_with(tmp_path, lambda fake: fake.set_counter(40_000))
     (gap,) = [g for g in acq["gaps"] if g["sensor"] == "a"]

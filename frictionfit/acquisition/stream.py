@@ -25,7 +25,11 @@ __all__ = ["Gap", "SensorStream"]
 
 #: At most this many gaps are listed per sensor; the rest are only counted.
 MAX_GAPS_LISTED = 1000
-#: A connected sensor silent this long (s) no longer holds back the other sensors' rows.
+#: A connected sensor silent this long (s) no longer holds back the other sensors' rows;
+#: a frame whose counter moved on this much less than the host clock since the previous
+#: frame is placed by its arrival (the DAQ stopped counting while silent). The port's
+#: buffers hold ~0.25 s at 1 kHz: a host that stops reading for longer loses frames,
+#: and the counter says how many, so a late frame is never taken for a silence.
 SILENT_S = 1.0
 #: A frame whose counter moved on this much more (s) than the host clock since the
 #: previous frame cannot have been sampled yet: the counter restarted, and the frame is
@@ -203,9 +207,10 @@ class SensorStream:
         the frames it received are numbered on it before the port is reopened. A new
         link starts at ``floor`` or later: the first row not yet written, when other
         sensors' rows went on while this one was away (their clocks drift from the
-        host's by tens of ms an hour); so does a frame after a silence whose counter
-        would put it among rows already written (the DAQ's counter stopped with it), and
-        one whose counter jumped :data:`AHEAD_S` further than the host clock (restarted).
+        host's by tens of ms an hour); so does a frame whose counter moved on
+        :data:`SILENT_S` less than the host clock (the DAQ's counter stopped while it was
+        silent), or would put it among rows already written, and one whose counter jumped
+        :data:`AHEAD_S` further than the host clock (restarted).
         """
         received, self._pending = self._pending, []
         ended = []
@@ -229,13 +234,13 @@ class SensorStream:
                                      f"link lost ({self._down_reason}); reconnected")
         k = self.last_k + 1 + f.lost_before
         assert self.last_arrival is not None  # set with last_k
-        ahead = (k - self.last_k) / self.rate_hz - (arrival - self.last_arrival)
+        silence = arrival - self.last_arrival
+        ahead = (k - self.last_k) / self.rate_hz - silence
         if ahead > AHEAD_S:
             return self._start_index(arrival, t0, floor, f"the DAQ's counter jumped "
                                      f"{ahead:.1f} s further than the host clock "
                                      "(restarted?)")
-        if k < floor:
-            silence = arrival - (self.last_arrival or arrival)
+        if ahead < -SILENT_S or k < floor:
             return self._start_index(arrival, t0, floor, f"the DAQ fell silent for "
                                      f"{silence:.2f} s and its counter with it")
         if f.lost_before:
