@@ -4,8 +4,8 @@ recording's uncertainty.
 :class:`CalibratedPipeline` wraps a classification pipeline (``features -> ... ->
 classifier``). Its probabilities are the classifier's own (an SVM's Platt scaling;
 decision values for a classifier without probabilities) mapped through a calibrator
-(temperature scaling of :class:`~sklearn.calibration.CalibratedClassifierCV` by
-default) fitted on *held-out* scores. By default each training recording is scored by
+(temperature scaling by default, its confidence bounded by the rule of succession)
+fitted on *held-out* scores. By default each training recording is scored by
 a pipeline trained on the other folds of a stratified split in which every fold holds a
 share of every class in every session: the inner pipelines see every day and three
 quarters or more of the recordings, so their scores are sized for the final pipeline.
@@ -29,7 +29,8 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
-from scipy.special import softmax
+from scipy.optimize import brentq, minimize_scalar
+from scipy.special import log_softmax, softmax
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.calibration import CalibratedClassifierCV
 from sklearn.exceptions import NotFittedError
@@ -60,6 +61,8 @@ SPLITS = ("stratified", "groups")
 #: and the calibrator flattens every call to uniform (5 simulated classes, 3 recordings
 #: each, k-fold: accuracy 1.000 at ECE 0.80; with 4 each, ECE 0.017).
 MIN_PER_CLASS = 3
+#: Range of the log inverse temperature of temperature scaling (scikit-learn's too).
+LOG_BETA_BOUNDS = (-10.0, 10.0)
 
 
 def feature_draws(transformer, X: Sequence[Recording], n_draws: int,
@@ -104,6 +107,39 @@ class _Scores(ClassifierMixin, BaseEstimator):
         return self.classes_[np.argmax(np.asarray(X, dtype=np.float64), axis=1)]
 
 
+class _Temperature:
+    """Temperature scaling of score matrices: probabilities ``softmax(beta_ * scores)``.
+
+    ``beta_`` minimises the cross-entropy on the held-out rows (as scikit-learn's
+    temperature scaling does), but no further than where the rows' mean top probability
+    reaches ``(r + 1) / (n + 2)``, the rule of succession for ``r`` right calls of ``n``.
+    Without that bound, a held-out set with no error drives the inverse temperature to
+    its limit and every call to probability 1 (18 simulated recordings of 3 classes: 1.0,
+    the others 1e-35); where the held-out calls have errors it seldom binds.
+    """
+
+    def fit(self, scores: np.ndarray, y: np.ndarray) -> _Temperature:
+        """``scores`` (n, n_classes); ``y`` the index of each row's true class."""
+        n = len(y)
+        rows = np.arange(n)
+
+        def cross_entropy(log_beta: float) -> float:
+            return -float(np.sum(log_softmax(np.exp(log_beta) * scores, axis=1)[rows, y]))
+
+        def excess_confidence(log_beta: float) -> float:
+            top = softmax(np.exp(log_beta) * scores, axis=1).max(axis=1).mean()
+            return top - (np.sum(scores.argmax(axis=1) == y) + 1) / (n + 2)
+
+        log_beta = minimize_scalar(cross_entropy, bounds=LOG_BETA_BOUNDS, method="bounded").x
+        if excess_confidence(log_beta) > 0 and excess_confidence(LOG_BETA_BOUNDS[0]) < 0:
+            log_beta = brentq(excess_confidence, LOG_BETA_BOUNDS[0], log_beta)
+        self.beta_ = float(np.exp(log_beta))
+        return self
+
+    def predict_proba(self, scores: np.ndarray) -> np.ndarray:
+        return softmax(self.beta_ * np.asarray(scores, dtype=np.float64), axis=1)
+
+
 class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     """A classification pipeline with class probabilities calibrated on held-out sessions.
 
@@ -123,8 +159,10 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
         ``"groups"``: each group scored by a pipeline trained on the other groups (the
         stratified split where there are fewer than two groups).
     method : {"temperature", "sigmoid", "isotonic"}, default "temperature"
-        The calibrator of :class:`~sklearn.calibration.CalibratedClassifierCV`;
-        temperature scaling keeps the classifier's ranking of classes and fits one number.
+        Temperature scaling keeps the classifier's ranking of classes and fits one
+        number, its confidence bounded by the rule of succession (so a held-out set
+        without errors does not make every call certain); the others are those of
+        :class:`~sklearn.calibration.CalibratedClassifierCV`.
     n_draws : int, default 32
         Draws per recording when the feature set can draw them (one row is used where
         it cannot); 0: the feature rows themselves (point estimates). With draws, a
@@ -136,7 +174,7 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     ----------
     pipeline_ : Pipeline
         The pipeline refitted on all training recordings.
-    calibrator_ : CalibratedClassifierCV or None
+    calibrator_ : object or None
         Maps score matrices ``(n, n_classes)`` to probabilities; None where too few
         recordings could be held out (a :class:`CalibrationWarning` says so, and the
         probabilities are the classifier's own).
@@ -176,10 +214,13 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
                 for train, test in self._splits(X, y):
                     model = clone(self.pipeline).fit([X[i] for i in train], y[train])
                     held_out[test] = self._scores(model, [X[i] for i in test])
-                # The frozen scorer is never refitted: its 2 folds only partition the rows.
-                self.calibrator_ = CalibratedClassifierCV(
-                    FrozenEstimator(_Scores(self.classes_).fit(None)), method=self.method,
-                    cv=2).fit(held_out, y)
+                if self.method == "temperature":
+                    self.calibrator_ = _Temperature().fit(
+                        held_out, np.searchsorted(self.classes_, y))
+                else:  # the frozen scorer is never refitted: its 2 folds partition the rows
+                    self.calibrator_ = CalibratedClassifierCV(
+                        FrozenEstimator(_Scores(self.classes_).fit(None)), method=self.method,
+                        cv=2).fit(held_out, y)
             except NotFittedError:  # a bug, not a shortage of recordings
                 raise
             except ValueError as exc:  # too few recordings to hold any out

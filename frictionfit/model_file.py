@@ -38,6 +38,7 @@ def trusted_types() -> list[str]:
         "frictionfit.classify.SessionNormalised",
         "frictionfit.calibration.CalibratedPipeline",
         "frictionfit.calibration._Scores",
+        "frictionfit.calibration._Temperature",
         *_SKLEARN_TRUSTED,
     })
 

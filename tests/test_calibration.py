@@ -112,6 +112,29 @@ def test_calibrated_pipeline_gives_probabilities_that_agree_with_its_predictions
     assert 0.4 < proba.max(axis=1).mean() < 0.99
 
 
+def test_a_held_out_set_without_errors_does_not_make_every_call_certain():
+    # three classes far apart (spread 0.01 for steps of 1), six training recordings each
+    recs = [synthetic(c, s, k, 0.01) for s in (1, 2) for c in range(3) for k in range(3)]
+    train = [r for r in recs if r.name.endswith(("_0", "_1"))]
+    test = [r for r in recs if r.name.endswith("_2")]
+    y = np.array([r.metadata["label"] for r in train])
+    model = CalibratedPipeline(_pipeline()).fit(train, y)
+    top = model.predict_proba(test).max(axis=1)
+    assert np.all(model.predict(test) == [r.metadata["label"] for r in test])
+    # 12 held out, 12 right: about (12 + 1) / (12 + 2) for the next, not 1 - 1e-30
+    assert np.all(top < 0.999) and top.mean() > 0.85
+
+
+def test_temperature_matches_the_rule_of_succession_on_separated_scores():
+    from frictionfit.calibration import _Temperature
+
+    rng = np.random.default_rng(0)
+    y = np.repeat(np.arange(4), 10)
+    scores = np.eye(4)[y] * 3.0 + rng.normal(0, 0.1, (40, 4))
+    proba = _Temperature().fit(scores, y).predict_proba(scores)
+    assert proba[np.arange(40), y].mean() == pytest.approx(1 - 1 / 42, abs=0.01)
+
+
 def test_wide_posterior_draws_flatten_the_probabilities(overlapping):
     train = [r for r in overlapping if r.metadata["session"] != 3]
     test = [r for r in overlapping if r.metadata["session"] == 3]
