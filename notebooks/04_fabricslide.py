@@ -182,4 +182,4 @@ warning.round(3)
 # training range, texture sets collapse (sliding 0.57, spectral 0.46) while the shortcut
 # keeps 0.99, so no texture claim here beats the grasp. The contact model itself explains
 # little of a slide: the breakaway fits above reach R² 0.27 at best, and over all slides
-# only half converge (median R² 0.23).
+# only half converge (median R² 0.22).
