@@ -310,8 +310,9 @@ def validate(rec: Recording) -> list[Problem]:
     Checks: time strictly increasing, runs of NaN/inf, dead (constant) channels,
     the median sample interval against ``sample_rate_hz``, events inside the time
     range, and unknown units. Dropped samples (gaps in ``t``) are reported as kind
-    ``"gap"``, commands after the last sample (earlier ones inside) as ``"ends_early"``;
-    see :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
+    ``"gap"``, commands after the last sample (earlier ones inside) as ``"ends_early"``,
+    samples the acquisition saw flagged overloaded as ``"overload"``; see
+    :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
     """
     problems: list[Problem] = []
     if rec.n_samples < 2:
@@ -375,6 +376,7 @@ def validate(rec: Recording) -> list[Problem]:
                 "events_outside", f"{len(outside)} event(s) outside the recording's time range "
                 f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at "
                 f"t={e.t:.6g} s (event times must be seconds from the start of the recording)"))
+    problems += _overloads(rec)
     for j, ch in enumerate(rec.channels):
         x = rec.samples[:, j]
         bad = ~np.isfinite(x)
@@ -403,12 +405,29 @@ def validate(rec: Recording) -> list[Problem]:
     return problems
 
 
+def _overloads(rec: Recording) -> list[Problem]:
+    """Kind ``"overload"`` per channel the acquisition listed as overloaded (the DAQ's
+    status bits: its values may be clipped)."""
+    acq = rec.extra.get("acquisition")
+    runs = acq.get("overloads") if isinstance(acq, dict) else None
+    if not isinstance(runs, list):
+        return []
+    by_channel: dict[str, list[dict]] = {}
+    for run in runs:
+        if isinstance(run, dict) and run.get("channel") in rec.channel_names:
+            by_channel.setdefault(run["channel"], []).append(run)
+    return [Problem("overload", f"{sum(int(r.get('samples', 0)) for r in found)} sample(s) "
+                    f"overloaded by the DAQ's status, first at t={found[0].get('t', '?')} s: "
+                    "their values may be clipped", name)
+            for name, found in by_channel.items()]
+
+
 #: Problems that are facts of a data link rather than defects: reported, never raised.
 #: Dropped rows and NaN bursts are expected of lab recordings (a serial link loses
 #: samples); segmentation and fitting mask them. A recording that ends before its last
 #: commands (an interrupted acquisition keeps every row it flushed and every command it
 #: sent) is used as far as it goes.
-INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early", "jitter"})
+INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early", "jitter", "overload"})
 #: Problems that make every number taken from the recording wrong: commands skip such a
 #: recording, naming it and the problem, unless asked to stop (``--strict``).
 DISQUALIFYING = frozenset({"too_short", "nonfinite_time", "nonmonotonic_time", "sample_rate",

@@ -66,13 +66,16 @@ class FakeOptoForce:
     rate_error : float
         Relative error of the DAQ's clock (0.01: its frames come 1 % faster than the
         configured rate, by the host's clock).
+    status : callable, optional
+        Frame index after the configuration -> the frame's status word (default 0).
     """
 
     def __init__(self, path: Path, *, serial: str = "ISE0A129",
                  source: Callable[[int], tuple[int, ...]] | None = None,
                  corrupt_every: int = 0, garbage_every: int = 0, seed: int = 0,
-                 rate_error: float = 0.0) -> None:
+                 rate_error: float = 0.0, status: Callable[[int], int] | None = None) -> None:
         self.rate_error = rate_error
+        self.status = status or (lambda k: 0)
         self.path = Path(path)
         self.serial = serial
         self.source = source or noisy_counts(seed)
@@ -168,13 +171,12 @@ class FakeOptoForce:
             if self._pending_bytes > MAX_PENDING:
                 self.frames_unsent += self._configured
                 continue
-            kind = "boot"
-            counts = (0, 0, 0)
+            kind, counts, status = "boot", (0, 0, 0), 0
             if self._configured:
                 self.k += 1
-                counts = self.source(self.k)
+                counts, status = self.source(self.k), self.status(self.k)
                 kind = "data"
-            raw = bytearray(DataFrame(self._counter, 0, counts).encode())
+            raw = bytearray(DataFrame(self._counter, status, counts).encode())
             n = self.corrupt_every
             if kind == "data" and n and self.k % n == n - 1:
                 raw[9] ^= 0x01

@@ -317,6 +317,30 @@ def test_a_counter_that_restarts_is_placed_by_the_host_clock(tmp_path):
     assert np.isfinite(rec.samples[:, 0]).mean() > 0.95
 
 
+def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
+    overloaded_x = 1 << 9  # status bit 9: Fx overloaded (reference section 5)
+    with FakeOptoForce(tmp_path / "tty", source=lambda k: (k % 30000, k % 7, k % 11),
+                       status=lambda k: overloaded_x if 200 <= k < 300 else 0):
+        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--duration", "1", "--out", str(tmp_path / "rec"),
+                                          "--quiet"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    acq = rec.extra["acquisition"]
+    (run,) = acq["overloads"]
+    assert run["channel"] == "s1_x" and run["samples"] == 100
+    assert acq["sensors"][0]["frames_overloaded"] == 100
+    k = rec.samples[:, 0]
+    assert run["t"] == pytest.approx(rec.t[k == 200][0])  # the run starts at frame 200
+    assert np.isfinite(k).all()  # the values are kept
+    (problem,) = [p for p in rec.problems if p.kind == "overload"]
+    assert problem.channel == "s1_x" and str(problem).startswith(
+        "channel 's1_x': 100 sample(s) overloaded by the DAQ's status")
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "rec")])
+    assert "problem [overload]: channel 's1_x': 100 sample(s)" in info.output
+    assert read_recording(tmp_path / "rec").n_samples == rec.n_samples  # informational
+
+
 def test_two_ports_share_one_grid(tmp_path):
     with FakeOptoForce(tmp_path / "a", seed=1) as fa, FakeOptoForce(tmp_path / "b", seed=2):
         result = CliRunner().invoke(app, [

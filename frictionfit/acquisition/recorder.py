@@ -232,7 +232,9 @@ def _summary(streams: Sequence[SensorStream], writer: RecordingWriter, status: s
         "rate_hz_achieved": round(writer.rows_written / span, 3) if span else 0.0,
         "sensor_serial": serials[0] if len(serials) == 1 else serials,
         "gaps": [dict(g, sensor=p["name"]) for p in parts for g in p["gaps"]],
-        "sensors": [{k: v for k, v in p.items() if k != "gaps"} for p in parts],
+        "overloads": [o for p in parts for o in p["overloads"]],
+        "sensors": [{k: v for k, v in p.items() if k not in ("gaps", "overloads")}
+                    for p in parts],
     }
 
 

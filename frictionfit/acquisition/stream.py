@@ -86,6 +86,8 @@ class SensorStream:
         self.frames_received = 0
         self.frames_flagged = 0
         self.frames_overloaded = 0
+        self.overloads: list[dict[str, object]] = []  # {"channel", "k", "samples"} runs
+        self._open_overload: dict[str, dict[str, object]] = {}
         self.samples_lost = 0
         self.reconnects = 0
         self.reconnect_failures = 0
@@ -248,6 +250,22 @@ class SensorStream:
                       "frames)")
         return k
 
+    def _overloaded(self, k: int, axes: tuple[str, ...]) -> None:
+        """Extend, or start, each overloaded channel's run of samples at grid index ``k``.
+
+        The status word names axes; on a 4-channel DAQ (one word for all four) every
+        channel of a named axis is taken as overloaded."""
+        for channel in self.channels:
+            if not channel.name.endswith(axes):
+                continue
+            run = self._open_overload.get(channel.name)
+            if run is not None and run["k"] + run["samples"] == k:
+                run["samples"] += 1
+            elif len(self.overloads) < MAX_GAPS_LISTED:
+                run = self._open_overload[channel.name] = {"channel": channel.name, "k": k,
+                                                           "samples": 1}
+                self.overloads.append(run)
+
     def _number(self, received: list[tuple[float, DataFrame]], t0: float, floor: int
                 ) -> tuple[np.ndarray, np.ndarray]:
         """Grid indices (n,) and values (n, c) of one link's frames, in order."""
@@ -261,6 +279,8 @@ class SensorStream:
             values[i] = f.counts if f.valid else np.nan
             self.frames_flagged += not f.valid
             self.frames_overloaded += bool(f.overloaded)
+            if f.overloaded:
+                self._overloaded(self.last_k, f.overloaded)
         if self.scale is not None:
             values *= self.scale
         self.frames_received += len(received)
@@ -295,6 +315,8 @@ class SensorStream:
             "frames_corrupted": self.frames_corrupted,
             "frames_flagged": self.frames_flagged,
             "frames_overloaded": self.frames_overloaded,
+            "overloads": [{"channel": r["channel"], "t": round(r["k"] / self.rate_hz, 6),
+                           "samples": r["samples"]} for r in self.overloads],
             "samples_lost": self.samples_lost,
             "bytes_discarded": self._done["discarded"] + (
                 live.parser.bytes_discarded if live is not None else 0),
