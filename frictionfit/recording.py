@@ -243,6 +243,32 @@ class Recording:
                 f"no channel {name!r}; channels are {list(self.channel_names)}", path=self.name
             ) from None
 
+    def overload_runs(self) -> dict[str, list[tuple[float, int]]]:
+        """The runs of samples the acquisition saw flagged overloaded (the DAQ's status
+        bits), by channel: ``(t of the first, s; how many)`` each; malformed entries of the
+        sidecar's ``acquisition.overloads`` are ignored."""
+        acq = self.extra.get("acquisition")
+        runs = acq.get("overloads") if isinstance(acq, dict) else None
+        out: dict[str, list[tuple[float, int]]] = {}
+        for run in runs if isinstance(runs, list) else []:
+            try:
+                if run["channel"] in self.channel_names:
+                    out.setdefault(run["channel"], []).append(
+                        (float(run["t"]), int(run["samples"])))
+            except (KeyError, TypeError, ValueError):
+                continue
+        return out
+
+    def overloaded(self, channel: str, t: np.ndarray) -> np.ndarray:
+        """Boolean mask over times ``t`` (s): True within a run of ``channel`` the
+        acquisition saw flagged overloaded (:meth:`overload_runs`)."""
+        t = np.asarray(t, dtype=np.float64)
+        mask = np.zeros(t.shape, dtype=bool)
+        half = 0.5 / self.sample_rate_hz
+        for start, n in self.overload_runs().get(channel, []):
+            mask |= (t > start - half) & (t < start + n / self.sample_rate_hz - half)
+        return mask
+
     def motor_positions(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The actuator's measured positions, or None when the recording holds none.
 
@@ -408,18 +434,10 @@ def validate(rec: Recording) -> list[Problem]:
 def _overloads(rec: Recording) -> list[Problem]:
     """Kind ``"overload"`` per channel the acquisition listed as overloaded (the DAQ's
     status bits: its values may be clipped)."""
-    acq = rec.extra.get("acquisition")
-    runs = acq.get("overloads") if isinstance(acq, dict) else None
-    if not isinstance(runs, list):
-        return []
-    by_channel: dict[str, list[dict]] = {}
-    for run in runs:
-        if isinstance(run, dict) and run.get("channel") in rec.channel_names:
-            by_channel.setdefault(run["channel"], []).append(run)
-    return [Problem("overload", f"{sum(int(r.get('samples', 0)) for r in found)} sample(s) "
-                    f"overloaded by the DAQ's status, first at t={found[0].get('t', '?')} s: "
-                    "their values may be clipped", name)
-            for name, found in by_channel.items()]
+    return [Problem("overload", f"{sum(n for _, n in runs)} sample(s) overloaded by the "
+                    f"DAQ's status, first at t={runs[0][0]:.6g} s: their values may be "
+                    "clipped", name)
+            for name, runs in rec.overload_runs().items()]
 
 
 #: Problems that are facts of a data link rather than defects: reported, never raised.

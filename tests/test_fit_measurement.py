@@ -343,6 +343,23 @@ def test_a_clipped_channel_is_fitted_without_its_clipped_runs_and_says_so(simula
     assert Status(result.status[0]) == Status.SATURATED
 
 
+def test_samples_the_daq_flagged_overloaded_are_left_out_and_said(simulated):
+    rec = simulated[1]
+    first = int(np.argmax(rec.t >= 3.0))
+    runs = [{"channel": "index_x", "t": float(rec.t[first]), "samples": 150},
+            {"channel": "thumb_x", "t": 1.0, "samples": 40}, {"channel": "nope", "t": 0.0}]
+    flagged = dataclasses.replace(rec, extra={**rec.extra, "acquisition": {"overloads": runs}})
+    mask = flagged.overloaded("index_x", rec.t)
+    assert mask.sum() == 150 and mask[first] and not mask[first - 1]
+    assert measurement_data(flagged, "index_x").clipped == 150
+    assert measurement_data(rec, "index_x").clipped == 0
+    result = fit_measurements([measurement_data(flagged, "index_x")], model="no_peak2")
+    assert Status(result.status[0]) == Status.SATURATED
+    from frictionfit.features._base import content_key
+
+    assert content_key(flagged) != content_key(rec)  # cached features are not reused
+
+
 def test_a_recording_cut_short_is_fitted_from_what_it_holds(tmp_path, simulated):
     from frictionfit.datasets.rubbing_lab import load
     from frictionfit.recording import DatasetWarning

@@ -58,6 +58,9 @@ def content_key(rec: Recording) -> str:
     reads = rec.extra.get(MOTOR_POSITIONS)  # the fitted sets time movements from them
     if reads is not None:  # (a recording without reads keeps its key)
         parts.append(reads)
+    overloads = rec.overload_runs()  # the fits leave these samples out
+    if overloads:  # (a recording without them keeps its key)
+        parts.append(sorted(overloads.items()))
     return joblib.hash(tuple(parts))
 
 

@@ -80,8 +80,8 @@ class MeasurementData:
     ``motor``: the movements as the motor reported them
     (:func:`~frictionfit.fit.motor.motor_timing`; ``None`` when the recording has no
     position reads), which then set ``commands``, ``stretch`` and the rig's starting values;
-    ``clipped``: how many samples sat in a run at the channel's extreme (a saturated sensor:
-    left out, and the fit's status says so).
+    ``clipped``: how many samples sat in a run at the channel's extreme (a saturated sensor)
+    or were flagged overloaded by the DAQ: left out, and the fit's status says so.
     """
 
     name: str
@@ -190,7 +190,8 @@ def _guess(t, y, ok, commands, signs, stroke_mm: float) -> tuple[float, dict]:
 
 def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse: int = 10,
                      skip_motions: int = 1, stroke_mm: float = 1.0) -> MeasurementData:
-    """One channel of ``rec``, faults masked (dropped rows, NaN, spikes, stuck values), as
+    """One channel of ``rec``, faults masked (dropped rows, NaN, spikes, stuck values, runs
+    clipped at an extreme or flagged overloaded by the DAQ), as
     block means: ``decimate`` samples per block while the finger moves, ``coarse`` while it
     holds; the blocks before the out command of motion ``skip_motions`` are not fitted.
     ValueError, naming the recording and channel, for a channel absent, not in N or without
@@ -202,7 +203,7 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     commands, signs = _move_signs(rec)
     t_grid, grid, spike, stuck = checked_grid(rec)
     j = rec.channel_names.index(channel)
-    clipped = saturated_samples(grid[None, :, j])[0]
+    clipped = saturated_samples(grid[None, :, j])[0] | rec.overloaded(channel, t_grid)
     ok = np.isfinite(grid[:, j]) & ~spike[:, j] & ~stuck & ~clipped
     if not ok.any() or np.ptp(grid[ok, j]) <= DEAD_CHANNEL_SPAN:
         raise ValueError(f"{rec.name}: channel {channel!r} " + (
