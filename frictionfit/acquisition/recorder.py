@@ -93,11 +93,6 @@ class RecordingWriter:
                 f"{path}: cannot {what} ({exc.strerror or exc}); {self.rows_written} rows "
                 f"are on disk, {len(self._lines)} received rows are not") from None
 
-    @property
-    def rows_pending(self) -> int:
-        """Rows received but not yet on disk."""
-        return len(self._lines)
-
     def append(self, k: np.ndarray, values: np.ndarray) -> None:
         """Queue rows: grid indices ``k`` (n,) (t = k / rate) and values (n, n_channels)."""
         t = np.asarray(k) / self.sample_rate_hz
