@@ -122,13 +122,13 @@ class _Temperature:
         """``scores`` (n, n_classes); ``y`` the index of each row's true class."""
         n = len(y)
         rows = np.arange(n)
+        succession = (np.sum(scores.argmax(axis=1) == y) + 1) / (n + 2)
 
         def cross_entropy(log_beta: float) -> float:
             return -float(np.sum(log_softmax(np.exp(log_beta) * scores, axis=1)[rows, y]))
 
         def excess_confidence(log_beta: float) -> float:
-            top = softmax(np.exp(log_beta) * scores, axis=1).max(axis=1).mean()
-            return top - (np.sum(scores.argmax(axis=1) == y) + 1) / (n + 2)
+            return softmax(np.exp(log_beta) * scores, axis=1).max(axis=1).mean() - succession
 
         log_beta = minimize_scalar(cross_entropy, bounds=LOG_BETA_BOUNDS, method="bounded").x
         if excess_confidence(log_beta) > 0 and excess_confidence(LOG_BETA_BOUNDS[0]) < 0:
