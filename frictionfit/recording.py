@@ -433,11 +433,22 @@ def validate(rec: Recording) -> list[Problem]:
 
 def _overloads(rec: Recording) -> list[Problem]:
     """Kind ``"overload"`` per channel the acquisition listed as overloaded (the DAQ's
-    status bits: its values may be clipped)."""
-    return [Problem("overload", f"{sum(n for _, n in runs)} sample(s) overloaded by the "
-                    f"DAQ's status, first at t={runs[0][0]:.6g} s: their values may be "
-                    "clipped", name)
-            for name, runs in rec.overload_runs().items()]
+    status bits: its values may be clipped), and per sensor whose runs were too many to
+    list (those samples are neither named nor left out of the fits)."""
+    problems = [Problem("overload", f"{sum(n for _, n in runs)} sample(s) overloaded by the "
+                        f"DAQ's status, first at t={runs[0][0]:.6g} s: their values may be "
+                        "clipped", name)
+                for name, runs in rec.overload_runs().items()]
+    acq = rec.extra.get("acquisition")
+    sensors = acq.get("sensors") if isinstance(acq, dict) else None
+    for sensor in sensors if isinstance(sensors, list) else []:
+        unlisted = sensor.get("overloads_unlisted") if isinstance(sensor, dict) else None
+        if isinstance(unlisted, int) and unlisted > 0:
+            problems.append(Problem(
+                "overload", f"sensor {sensor.get('name')!r}: {unlisted} more overloaded "
+                "run(s) than the sidecar lists; their samples are not marked and the fits "
+                "keep them"))
+    return problems
 
 
 #: Problems that are facts of a data link rather than defects: reported, never raised.

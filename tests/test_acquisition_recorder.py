@@ -19,6 +19,7 @@ import pytest
 from fake_optoforce import FakeOptoForce
 from typer.testing import CliRunner
 
+from frictionfit.acquisition import stream as stream_module
 from frictionfit.acquisition.recorder import RecordingWriter, record
 from frictionfit.acquisition.stream import SensorStream
 from frictionfit.cli import app
@@ -339,6 +340,23 @@ def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
     info = CliRunner().invoke(app, ["info", str(tmp_path / "rec")])
     assert "problem [overload]: channel 's1_x': 100 sample(s)" in info.output
     assert read_recording(tmp_path / "rec").n_samples == rec.n_samples  # informational
+
+
+def test_overloaded_runs_beyond_the_list_are_counted_and_named(tmp_path, monkeypatch):
+    monkeypatch.setattr(stream_module, "MAX_GAPS_LISTED", 10)
+    overloaded_x = 1 << 9
+    with FakeOptoForce(tmp_path / "tty", source=lambda k: (k % 30000, k % 7, k % 11),
+                       status=lambda k: overloaded_x if 200 <= k < 300 and k % 2 else 0):
+        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
+                                          "--duration", "1", "--out", str(tmp_path / "rec"),
+                                          "--quiet"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rec", on_error="flag")
+    acq = rec.extra["acquisition"]
+    assert len(acq["overloads"]) == 10 and acq["sensors"][0]["overloads_unlisted"] == 40
+    unlisted = [str(p) for p in rec.problems if p.kind == "overload" and p.channel is None]
+    assert unlisted == ["sensor 's1': 40 more overloaded run(s) than the sidecar lists; "
+                        "their samples are not marked and the fits keep them"]
 
 
 def test_two_ports_share_one_grid(tmp_path):

@@ -23,7 +23,8 @@ from frictionfit.recording import Channel
 
 __all__ = ["Gap", "SensorStream"]
 
-#: At most this many gaps are listed per sensor; the rest are only counted.
+#: At most this many gaps, and as many overloaded runs, are listed per sensor; the rest
+#: are only counted (``gaps_unlisted``, ``overloads_unlisted``).
 MAX_GAPS_LISTED = 1000
 #: A connected sensor silent this long (s) no longer holds back the other sensors' rows;
 #: a frame whose counter moved on this much less than the host clock since the previous
@@ -88,6 +89,7 @@ class SensorStream:
         self.frames_overloaded = 0
         self.overloads: list[dict[str, object]] = []  # {"channel", "k", "samples"} runs
         self._open_overload: dict[str, dict[str, object]] = {}
+        self.overloads_unlisted = 0
         self.samples_lost = 0
         self.reconnects = 0
         self.reconnect_failures = 0
@@ -261,10 +263,13 @@ class SensorStream:
             run = self._open_overload.get(channel.name)
             if run is not None and run["k"] + run["samples"] == k:
                 run["samples"] += 1
-            elif len(self.overloads) < MAX_GAPS_LISTED:
-                run = self._open_overload[channel.name] = {"channel": channel.name, "k": k,
-                                                           "samples": 1}
+                continue
+            run = self._open_overload[channel.name] = {"channel": channel.name, "k": k,
+                                                       "samples": 1}
+            if len(self.overloads) < MAX_GAPS_LISTED:
                 self.overloads.append(run)
+            else:
+                self.overloads_unlisted += 1
 
     def _number(self, received: list[tuple[float, DataFrame]], t0: float, floor: int
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -317,6 +322,7 @@ class SensorStream:
             "frames_overloaded": self.frames_overloaded,
             "overloads": [{"channel": r["channel"], "t": round(r["k"] / self.rate_hz, 6),
                            "samples": r["samples"]} for r in self.overloads],
+            "overloads_unlisted": self.overloads_unlisted,
             "samples_lost": self.samples_lost,
             "bytes_discarded": self._done["discarded"] + (
                 live.parser.bytes_discarded if live is not None else 0),
