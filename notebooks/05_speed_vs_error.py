@@ -1,7 +1,10 @@
 # ---
 # jupyter:
+#   frictionfit:
+#     quotes_one_run: true
 #   jupytext:
 #     formats: ipynb,py:percent
+#     notebook_metadata_filter: frictionfit
 #     text_representation:
 #       extension: .py
 #       format_name: percent
