@@ -73,7 +73,8 @@ class Motion:
     ``t0`` is the recording time (s) of the motion's first sample, so a phase boundary
     ``b`` (s from motion start) is at ``t0 + b`` in the recording. ``movements`` are the
     out and back :class:`Movement`; ``problems`` name what was masked (missing samples,
-    spikes, stuck values) or guessed (boundaries the force did not show).
+    spikes, stuck values, samples the DAQ flagged overloaded) or guessed (boundaries the
+    force did not show).
     """
 
     recording: str
@@ -431,8 +432,9 @@ def segment(
     lag_s : float
         Nominal motor latency (s); see :func:`detect_movements`.
     mask_faults : bool, default True
-        Set spikes and stuck values (see :func:`suspect_samples`) to NaN, so fits
-        treat them as missing; ``Motion.problems`` says what was masked either way.
+        Set spikes and stuck values (see :func:`suspect_samples`) and samples the DAQ
+        flagged overloaded to NaN, so fits treat them as missing; ``Motion.problems`` says
+        what was masked either way.
 
     Returns
     -------
@@ -479,16 +481,18 @@ def segment(
 
 
 def _masked_grid(rec: Recording, mask_faults: bool, filter_n: int | None):
-    """The uniform grid of ``rec`` (see :func:`regrid`) with spikes and stuck rows set to NaN
+    """The uniform grid of ``rec`` (see :func:`regrid`) with spikes, stuck rows and samples the
+    DAQ flagged overloaded (:meth:`~frictionfit.recording.Recording.overloaded`) set to NaN
     (``mask_faults``), then filtered (``filter_n``); and the faults found before: missing
-    samples, spikes and stuck rows."""
+    samples, spikes, stuck rows and overloaded samples."""
     t, grid, spike, stuck = checked_grid(rec)
     missing = ~np.isfinite(grid)
+    overloaded = np.column_stack([rec.overloaded(ch.name, t) for ch in rec.channels])
     if mask_faults:
-        grid[spike | stuck[:, None]] = np.nan
+        grid[spike | stuck[:, None] | overloaded] = np.nan
     if filter_n:
         grid = moving_average(grid, filter_n)
-    return t, grid, (missing, spike, stuck)
+    return t, grid, (missing, spike, stuck, overloaded)
 
 
 def _phases(out: Movement, ret: Movement, t0: float, end: float) -> tuple[Phase, ...]:
@@ -505,10 +509,11 @@ def _phases(out: Movement, ret: Movement, t0: float, end: float) -> tuple[Phase,
 def _problems(faults: tuple, rows: slice, movements: tuple[Movement, ...]) -> tuple[str, ...]:
     """What ``Motion.problems`` lists for the grid rows ``rows``: counts of the faults found by
     :func:`_masked_grid` and of the boundaries the force did not show."""
-    missing, spike, stuck = faults
+    missing, spike, stuck, overloaded = faults
     found = {"missing sample(s)": int(missing[rows].any(axis=1).sum()),
              "spike(s) masked": int(spike[rows].sum()),
              "stuck sample(s) masked": int(stuck[rows].sum()),
+             "sample(s) the DAQ flagged overloaded masked": int(overloaded[rows].sum()),
              "boundary(ies) not seen in the force, nominal times used":
                  sum(not mv.detected for mv in movements)}
     return tuple(f"{count} {what}" for what, count in found.items() if count)

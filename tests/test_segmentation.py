@@ -157,6 +157,21 @@ def test_spikes_and_stuck_values_are_masked_and_reported(simulated):
     assert all(bool(m.problems) == (m.index in faulty) for m in segment(rec))
 
 
+def test_samples_the_daq_flagged_overloaded_are_masked_and_reported(simulated):
+    rec = simulated[3]
+    runs = [{"channel": "index_x", "t": 4.3, "samples": 100}]
+    flagged = replace(rec, extra={**rec.extra, "acquisition": {"overloads": runs}})
+    j = rec.channel_names.index("index_x")
+    two = {m.index: m for m in segment(flagged)}[2]
+    # motion 2 starts at 4 s: t = 4.3 s is its row 300
+    assert "100 sample(s) the DAQ flagged overloaded masked" in two.problems
+    assert np.isnan(two.samples[300:400, j]).all()
+    assert np.isfinite(two.samples[[299, 400], j]).all()
+    assert np.isfinite(np.delete(two.samples[300:400], j, axis=1)).all()
+    kept = {m.index: m for m in segment(flagged, mask_faults=False)}[2]
+    assert np.isfinite(kept.samples[300:400, j]).all() and kept.problems == two.problems
+
+
 def test_noise_free_plateaus_are_not_called_stuck():
     x = np.repeat([0.0, 1.0, 0.5, 0.2], 50)[:, None] * [1.0, -1.0]  # exact repeats everywhere
     spike, stuck = suspect_samples(x)
