@@ -75,6 +75,9 @@ def test_onset_rate_is_the_data_steepest_rise_in_out_strokes(recordings):
             steepest.append(np.max(y[window[n:]] - y[window[:-n]]) / (n * 1e-3))
         assert rate == pytest.approx(np.median(steepest), rel=0.15)
         assert 0 < se < 0.1 * rate
+    frame = res.to_frame()  # the table's headers carry each quantity's own unit
+    assert {"onset_rate [N/s]", "onset_rate_stderr [N/s]", "f_held [N]"} <= set(frame.columns)
+    assert frame["onset_rate [N/s]"].tolist() == [d["onset_rate"][0] for d in res.derived]
 
 
 def test_static_level_carries_the_covariance_of_its_two_parts(recordings):

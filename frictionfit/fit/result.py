@@ -132,6 +132,8 @@ class FitResult:
 
     def to_frame(self, ids=None) -> pd.DataFrame:
         """One row per trial: id, model, status, each parameter with stderr and unit, stats."""
+        from frictionfit.fit.derived import DERIVED  # it imports the fitter: not at the top
+
         names = {m: self.member(self.model.index(m)).param_names  # one lookup per model
                  for m in dict.fromkeys(self.model)}
         rows = []
@@ -146,8 +148,8 @@ class FitResult:
                 row[f"{name}_stderr [{unit}]"] = stderr[name]
                 row[f"{name}_flag"] = self.flags[i].get(name, "")
             for name, (v, se) in (self.derived[i] if self.derived is not None else {}).items():
-                row[f"{name} [N]"] = v
-                row[f"{name}_stderr [N]"] = se
+                row[f"{name} [{DERIVED[name]}]"] = v
+                row[f"{name}_stderr [{DERIVED[name]}]"] = se
             for stat in ("chi2", "redchi", "aic", "bic", "r2", "cond", "n_steps", "ndata",
                          "nvarys"):
                 if getattr(self, stat) is not None:
