@@ -147,6 +147,37 @@ def test_millinewtons_fit_as_newtons_and_raw_counts_are_refused_by_name(tmp_path
             "forces in N" in result.output
 
 
+def test_motions_fit_the_channels_asked_and_skip_a_dead_one_by_name(tmp_path):
+    path = _measurement(tmp_path)
+    side = json.loads(path.with_suffix(".json").read_text())
+    frame = pd.read_csv(path)
+    frame["thumb_x"] = 0.25  # a dead sensor
+    frame.to_csv(path, index=False)
+    path.with_suffix(".json").write_text(json.dumps(side))
+    out = tmp_path.parent / f"{tmp_path.name}-fits.csv"
+    args = ["fit", str(path), "--motions", "--model", "elastic_plastic", "--out", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "skipped m1: channel 'thumb_x': constant at 0.25 N (dead?)" in result.output
+    assert sorted(pd.read_csv(out)["trial"]) == ["m1/motion1/index_x"]
+    result = CliRunner().invoke(app, [*args, "--strict"])
+    assert result.exit_code == 2 and "m1: channel 'thumb_x': constant" in result.output
+    result = CliRunner().invoke(app, [*args, "--channel", "thumb_x"])
+    assert result.exit_code == 2 and "no motion could be segmented" in result.output
+    result = CliRunner().invoke(app, [*args, "--channel", "index_y"])
+    assert result.exit_code == 2 and "no channel 'index_y'" in result.output
+
+
+def test_motions_fit_only_the_channels_asked(tmp_path):
+    path = _measurement(tmp_path)
+    out = tmp_path.parent / f"{tmp_path.name}-fits.csv"
+    result = CliRunner().invoke(app, ["fit", str(path), "--motions", "--model",
+                                      "elastic_plastic", "--channel", "thumb_x", "--out",
+                                      str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(pd.read_csv(out)["trial"]) == ["m1/motion1/thumb_x"]
+
+
 def test_fit_with_nothing_to_fit_exits_2(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions"])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output

@@ -44,8 +44,9 @@ def fit(
                             "day holds its day's profile)."),
     save_rig: Path = typer.Option(None, help="Whole fits with --rig session: write each "
                                   "session's motor profile to this .json file."),
-    channel: list[str] = typer.Option([], help="Whole fits: channels to fit (repeatable; "
-                                      "default thumb_x and index_x)."),
+    channel: list[str] = typer.Option([], help="Channels to fit (repeatable; whole fits: "
+                                      "default thumb_x and index_x; --motions: every channel). "
+                                      "A dead (constant) channel is skipped by name."),
     out: Path = typer.Option(Path("fits.csv"), help="Results table: .csv or .parquet."),
     report: bool = typer.Option(False, help="Print the fit report of the first row."),
     plot: Path = typer.Option(None, help="Write a PNG of data vs. fit with residuals per row "
@@ -108,8 +109,6 @@ def fit(
                    priors, stroke_mm, _rig_option(rig, save_rig), uncertainty,
                    _Output(out, plot, report, save_rig))
         return
-    if channel:
-        raise typer.BadParameter("per-motion fits take every channel", param_hint="--channel")
     if rig != "recording" or save_rig is not None:
         raise typer.BadParameter("per-motion fits fit the motor per motion",
                                  param_hint="--rig / --save-rig")
@@ -118,8 +117,8 @@ def fit(
                                  param_hint="--chains with --scheduler")
     options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
                    fix=fixed, tie=tie, priors=priors)
-    _fit_motions(files, strict, options, _Posterior(uncertainty, chains, scheduler),
-                 _Output(out, plot, report))
+    _fit_motions(files, strict, tuple(channel), options,
+                 _Posterior(uncertainty, chains, scheduler), _Output(out, plot, report))
 
 
 @dataclass(frozen=True)
@@ -141,15 +140,16 @@ class _Posterior:
     scheduler: str | None
 
 
-def _fit_motions(files: list[Path], strict: bool, options: dict, posterior: _Posterior,
-                 output: _Output) -> None:
-    """``fit --motions``: every non-preparatory motion x channel, one batch per sample rate."""
+def _fit_motions(files: list[Path], strict: bool, channels: tuple[str, ...], options: dict,
+                 posterior: _Posterior, output: _Output) -> None:
+    """``fit --motions``: every non-preparatory motion x channel (``channels``, default
+    every one), one batch per sample rate."""
     import pandas as pd
 
     from frictionfit.errors import FrictionfitError
     from frictionfit.fit import fit_report, fit_trials
 
-    batches, problems, used = _trials(files, strict)
+    batches, problems, used = _trials(files, strict, channels)
     if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
@@ -334,18 +334,35 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         typer.echo(fit_report(result, 0))
 
 
-def _trials(files: list[Path], strict: bool):
-    """Motions x channels of ``files`` as :class:`~frictionfit.fit.Trials`, one batch per
-    sample interval; each recording's problems (named on stderr); how many recordings were
-    used. A recording that cannot be read or segmented, or whose problems make its numbers
-    wrong, is skipped by name (``strict``: the command stops)."""
+def _trials(files: list[Path], strict: bool, channels: tuple[str, ...] = ()):
+    """Motions x ``channels`` (default every channel) of ``files`` as
+    :class:`~frictionfit.fit.Trials`, one batch per sample interval; each recording's
+    problems (named on stderr); how many recordings were used. A recording that cannot be
+    read or segmented, or whose problems make its numbers wrong, is skipped by name, and so
+    is a dead channel (``strict``: the command stops)."""
+    from dataclasses import replace
+
     from frictionfit.fit import Trials
     from frictionfit.recording import check_newtons
     from frictionfit.segmentation import segment
 
     def motions_in_newtons(rec):
-        check_newtons(rec.name, rec.channels)  # per-motion fits take every channel
-        return segment(rec)
+        names = list(channels) or list(rec.channel_names)
+        for name in names:
+            rec.channel(name)  # a RecordingError naming a channel the recording lacks
+        dead = {p.channel: p for p in rec.problems if p.kind == "dead_channel"}
+        for name in (n for n in names if n in dead):
+            if strict or len(names) == 1:
+                raise ValueError(f"{rec.name}: channel {name!r}: {dead[name].detail}")
+            typer.echo(f"skipped {rec.name}: channel {name!r}: {dead[name].detail}", err=True)
+        keep = [n for n in names if n not in dead]
+        if not keep:
+            raise ValueError(f"{rec.name}: none of the channels {', '.join(names)} can be "
+                             "fitted")
+        check_newtons(rec.name, rec.channels, keep)
+        cols = [rec.channel_names.index(n) for n in keep]
+        return [replace(m, channels=tuple(m.channels[j] for j in cols), samples=m.samples[:, cols])
+                for m in segment(rec)]
 
     by_interval: dict[float, list] = {}
     problems: dict[str, str] = {}
