@@ -132,6 +132,13 @@ class FakeOptoForce:
         with self._lock:
             self._speed, self._t_stream, self._emitted = speed, time.monotonic(), 0
 
+    def power_cycle(self) -> None:
+        """Restart the DAQ with the USB link up (a brown-out): counter 0, streaming at its
+        power-up rate (100 Hz) until configured again."""
+        with self._lock:
+            self._speed, self._counter, self._configured = 10, 0, False
+            self._t_stream, self._emitted = time.monotonic(), 0
+
     def set_counter(self, counter: int) -> None:
         """Jump the sample counter to ``counter``, as a DAQ that restarted would."""
         with self._lock:

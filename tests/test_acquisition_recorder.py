@@ -311,11 +311,23 @@ def test_a_lone_sensor_silent_with_its_counter_keeps_its_time_line(tmp_path):
 
 def test_a_counter_that_restarts_is_placed_by_the_host_clock(tmp_path):
     acq, rec = _two_sensors_with(tmp_path, lambda fake: fake.set_counter(40_000))
-    (gap,) = [g for g in acq["gaps"] if g["sensor"] == "a"]
+    gap, configured = [g for g in acq["gaps"] if g["sensor"] == "a"]
+    assert configured["samples"] == 0 and "configured again" in configured["cause"]
     assert "counter jumped" in gap["cause"] and "restarted?" in gap["cause"]
     assert gap["samples"] < 50  # not the 39 s the counter claims
     assert rec.t[-1] < 3.2 and np.all(np.diff(rec.t) > 0)
     assert np.isfinite(rec.samples[:, 0]).mean() > 0.95
+
+
+def test_a_daq_that_power_cycles_is_configured_again(tmp_path):
+    acq, rec = _two_sensors_with(tmp_path, lambda fake: fake.power_cycle())
+    causes = [g["cause"] for g in acq["gaps"] if g["sensor"] == "a"]
+    assert any("counter jumped" in c for c in causes), causes
+    assert any(c.startswith("the restarted DAQ was configured again") for c in causes), causes
+    # after the restart the DAQ streams at 1 kHz again, not at its power-up 100 Hz
+    later = (rec.t > 1.2) & (rec.t < 2.9)
+    assert np.isfinite(rec.samples[later, 0]).mean() > 0.95
+    assert np.all(np.diff(rec.samples[later, 0][np.isfinite(rec.samples[later, 0])]) == 1)
 
 
 def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):

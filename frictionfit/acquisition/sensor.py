@@ -190,6 +190,16 @@ class OptoForceSensor:
                                        f"(speed {code}, filter {filter_code}): result {ack.result}")
         return sent
 
+    def reconfigure(self, rate_hz: float, filter_code: int = 0) -> None:
+        """Send rate (Hz) and filter code again while the reader thread runs, and wait for
+        the acknowledge (the reader sees it); no zeroing (a hardware zero taken now would
+        tare a loaded sensor). AcquisitionError without an acknowledge."""
+        self._ack_seen.clear()
+        self._send(ConfigCommand(speed_code(rate_hz), filter_code, 0).encode())
+        if not self._ack_seen.wait(REPLY_TIMEOUT_S):
+            raise AcquisitionError(f"{self.url}: no configuration acknowledge within "
+                                   f"{REPLY_TIMEOUT_S} s")
+
     def start(self) -> None:
         """Start reading frames into the queue in a background thread."""
         self._halt.clear()

@@ -103,6 +103,7 @@ class SensorStream:
         self._down_reason = ""
         self._last_try = -math.inf
         self._new_link = True
+        self._restarted = False
 
     # -- the link -------------------------------------------------------------------
     def connect(self) -> None:
@@ -214,7 +215,8 @@ class SensorStream:
         host's by tens of ms an hour); so does a frame whose counter moved on
         :data:`SILENT_S` less than the host clock (the DAQ's counter stopped while it was
         silent), or would put it among rows already written, and one whose counter jumped
-        :data:`AHEAD_S` further than the host clock (restarted).
+        :data:`AHEAD_S` further than the host clock (restarted: the DAQ is then configured
+        again, as it came back at its power-up rate).
         """
         received, self._pending = self._pending, []
         ended = []
@@ -228,7 +230,25 @@ class SensorStream:
         if self.sensor is not None:
             received += self.sensor.received()
         ks, values = zip(*ended, self._number(received, t0, floor), strict=True)
+        if self._restarted:
+            self._configure_again()
         return np.concatenate(ks), np.concatenate(values)
+
+    def _configure_again(self) -> None:
+        """Send the configuration again to a DAQ whose counter restarted: it came back from
+        a power cycle at its power-up rate and filter (100 Hz, 15 Hz by the reference), not
+        at the recording's. Listed with the gaps either way (0 samples)."""
+        self._restarted = False
+        if self.sensor is None or self.last_k is None:
+            return
+        try:
+            self.sensor.reconfigure(self.rate_hz, self.filter_code)
+            cause = ("the restarted DAQ was configured again (rate and filter; a hardware "
+                     "zero is not taken again)")
+        except AcquisitionError as exc:
+            cause = (f"the restarted DAQ could not be configured again ({exc}): its samples "
+                     "may come at its power-up rate")
+        self._gap(self.last_k + 1, 0, cause)
 
     def _index(self, arrival: float, f: DataFrame, t0: float, floor: int) -> int:
         """Grid index of frame ``f``: by its counter, unless the host clock rules it out."""
@@ -241,6 +261,7 @@ class SensorStream:
         silence = arrival - self.last_arrival
         ahead = (k - self.last_k) / self.rate_hz - silence
         if ahead > AHEAD_S:
+            self._restarted = True
             return self._start_index(arrival, t0, floor, f"the DAQ's counter jumped "
                                      f"{ahead:.1f} s further than the host clock "
                                      "(restarted?)")
