@@ -328,6 +328,11 @@ def test_a_daq_that_power_cycles_is_configured_again(tmp_path):
     later = (rec.t > 1.2) & (rec.t < 2.9)
     assert np.isfinite(rec.samples[later, 0]).mean() > 0.95
     assert np.all(np.diff(rec.samples[later, 0][np.isfinite(rec.samples[later, 0])]) == 1)
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "rec")])
+    assert info.exit_code == 0, info.output
+    assert f"acquisition: {acq['rows']} rows at {acq['rate_hz_achieved']} Hz achieved; " \
+        f"{acq['samples_lost']} sample(s) lost" in info.output
+    assert "a: 0 sample(s): the restarted DAQ was configured again" in info.output
 
 
 def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):

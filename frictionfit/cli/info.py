@@ -57,10 +57,41 @@ def _recording(path: Path) -> None:
     elif isinstance(acq, dict) and acq.get("status") == "failed":
         typer.echo(f"acquisition: failed ({acq.get('failure', 'no reason kept')}): "
                    f"{rec.n_samples} rows in the CSV")
+    if isinstance(acq, dict):
+        typer.echo(_acquisition(acq))
     if rec.extra:
         typer.echo(f"other sidecar keys: {sorted(rec.extra)}")
     for p in rec.problems:
         typer.echo(f"problem [{p.kind}]: {p}")
+
+
+#: Breaks of the acquisition ``info`` lists one by one; the rest are counted.
+SHOWN_BREAKS = 5
+
+
+def _acquisition(acq: dict) -> str:
+    """What the sidecar's ``acquisition`` object says of the recording, in a few lines:
+    samples lost and corrupted frames, reconnections, overloaded frames, and its first
+    listed breaks (gaps, restarts) with their causes."""
+    sensors = [s for s in acq.get("sensors", []) if isinstance(s, dict)]
+
+    def total(key: str) -> int:
+        return sum(int(s.get(key) or 0) for s in sensors) if sensors else int(acq.get(key) or 0)
+
+    gaps = [g for g in acq.get("gaps", []) if isinstance(g, dict)]
+    unlisted = total("gaps_unlisted")
+    lines = [f"acquisition: {acq.get('rows', '?')} rows at {acq.get('rate_hz_achieved', '?')} Hz "
+             f"achieved; {total('samples_lost')} sample(s) lost, {total('frames_corrupted')} "
+             f"corrupted frame(s) dropped, {total('reconnects')} reconnection(s), "
+             f"{total('frames_overloaded')} frame(s) flagged overloaded"]
+    for g in gaps[:SHOWN_BREAKS]:
+        sensor = f"{g['sensor']}: " if "sensor" in g else ""
+        lines.append(f"  break at t={g.get('t', '?')} s, {sensor}{g.get('samples', '?')} "
+                     f"sample(s): {g.get('cause', '?')}")
+    more = len(gaps) - SHOWN_BREAKS + unlisted
+    if more > 0:
+        lines.append(f"  ... and {more} more break(s) (the sidecar's acquisition.gaps)")
+    return "\n".join(lines)
 
 
 def _fault(f) -> str:
