@@ -120,8 +120,9 @@ def acquire(
     Data reach the disk every 0.25 s, so a crash loses at most that. A pulled cable
     loses what was in flight; the port is reopened when it comes back and the gap is
     listed in the sidecar's ``acquisition`` object, as is a sensor that falls silent
-    (it holds back the others' rows 1 s at most). A disk that refuses the rows stops
-    the recording, saying how many are on it. Ctrl-C or SIGTERM end cleanly.
+    (it holds back the others' rows 1 s at most) and a DAQ that restarts (it is
+    configured again). A disk that refuses the rows stops the recording, saying how
+    many are on it. Ctrl-C or SIGTERM end cleanly. `frictionfit info NAME` sums it up.
     """
     from frictionfit.errors import AcquisitionError
 
