@@ -335,16 +335,26 @@ def test_a_daq_that_power_cycles_is_configured_again(tmp_path):
     assert "a: 0 sample(s): the restarted DAQ was configured again" in info.output
 
 
-def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
-    overloaded_x = 1 << 9  # status bit 9: Fx overloaded (reference section 5)
+#: Status bit 9: Fx overloaded (reference section 5).
+OVERLOADED_X = 1 << 9
+
+
+def _acquired_with_status(tmp_path, status):
+    """One second from a fake DAQ whose frame ``k`` has status word ``status(k)`` (its Fx
+    is ``k``), acquired by the CLI; the recording read back and its acquisition object."""
     with FakeOptoForce(tmp_path / "tty", source=lambda k: (k % 30000, k % 7, k % 11),
-                       status=lambda k: overloaded_x if 200 <= k < 300 else 0):
+                       status=status):
         result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
                                           "--duration", "1", "--out", str(tmp_path / "rec"),
                                           "--quiet"])
     assert result.exit_code == 0, result.output
     rec = read_recording(tmp_path / "rec", on_error="flag")
-    acq = rec.extra["acquisition"]
+    return rec, rec.extra["acquisition"]
+
+
+def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
+    rec, acq = _acquired_with_status(
+        tmp_path, lambda k: OVERLOADED_X if 200 <= k < 300 else 0)
     (run,) = acq["overloads"]
     assert run["channel"] == "s1_x" and run["samples"] == 100
     assert acq["sensors"][0]["frames_overloaded"] == 100
@@ -361,15 +371,8 @@ def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
 
 def test_overloaded_runs_beyond_the_list_are_counted_and_named(tmp_path, monkeypatch):
     monkeypatch.setattr(stream_module, "MAX_GAPS_LISTED", 10)
-    overloaded_x = 1 << 9
-    with FakeOptoForce(tmp_path / "tty", source=lambda k: (k % 30000, k % 7, k % 11),
-                       status=lambda k: overloaded_x if 200 <= k < 300 and k % 2 else 0):
-        result = CliRunner().invoke(app, ["acquire", "--port", str(tmp_path / "tty"),
-                                          "--duration", "1", "--out", str(tmp_path / "rec"),
-                                          "--quiet"])
-    assert result.exit_code == 0, result.output
-    rec = read_recording(tmp_path / "rec", on_error="flag")
-    acq = rec.extra["acquisition"]
+    rec, acq = _acquired_with_status(
+        tmp_path, lambda k: OVERLOADED_X if 200 <= k < 300 and k % 2 else 0)
     assert len(acq["overloads"]) == 10 and acq["sensors"][0]["overloads_unlisted"] == 40
     unlisted = [str(p) for p in rec.problems if p.kind == "overload" and p.channel is None]
     assert unlisted == ["sensor 's1': 40 more overloaded run(s) than the sidecar lists; "
