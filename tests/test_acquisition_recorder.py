@@ -352,6 +352,21 @@ def _acquired_with_status(tmp_path, status):
     return rec, rec.extra["acquisition"]
 
 
+def test_info_reads_a_hand_edited_acquisition_object(tmp_path):
+    from dataclasses import replace
+
+    from frictionfit.recording import Recording, write_recording
+
+    rec = Recording.from_arrays(np.zeros((5, 1)), 1000.0, ["s1_x"])
+    acq = {"rows": 5, "gaps": 3, "sensors": [{"samples_lost": "many", "gaps_unlisted": 2},
+                                             {"samples_lost": 4.0}, "x"]}
+    write_recording(replace(rec, extra={"acquisition": acq}), tmp_path / "edited")
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "edited")])
+    assert info.exit_code == 0, info.output
+    assert "acquisition: 5 rows at ? Hz achieved; 4 sample(s) lost" in info.output
+    assert "... and 2 more counted, not listed" in info.output
+
+
 def test_overloaded_samples_are_kept_and_named_on_reading(tmp_path):
     rec, acq = _acquired_with_status(
         tmp_path, lambda k: OVERLOADED_X if 200 <= k < 300 else 0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -73,12 +74,18 @@ def _acquisition(acq: dict) -> str:
     """What the sidecar's ``acquisition`` object says of the recording, in a few lines:
     samples lost and corrupted frames, reconnections, overloaded frames, and its first
     listed breaks (gaps, restarts) with their causes."""
-    sensors = [s for s in acq.get("sensors", []) if isinstance(s, dict)]
+    def dicts(key: str) -> list[dict]:
+        found = acq.get(key)
+        return [d for d in found if isinstance(d, dict)] if isinstance(found, list) else []
+
+    def number(value) -> int:  # a hand-edited sidecar may hold anything
+        return int(value) if isinstance(value, (int, float)) and math.isfinite(value) else 0
+
+    sensors, gaps = dicts("sensors"), dicts("gaps")
 
     def total(key: str) -> int:
-        return sum(int(s.get(key) or 0) for s in sensors) if sensors else int(acq.get(key) or 0)
+        return sum(number(s.get(key)) for s in sensors) if sensors else number(acq.get(key))
 
-    gaps = [g for g in acq.get("gaps", []) if isinstance(g, dict)]
     unlisted = total("gaps_unlisted")
     lines = [f"acquisition: {acq.get('rows', '?')} rows at {acq.get('rate_hz_achieved', '?')} Hz "
              f"achieved; {total('samples_lost')} sample(s) lost, {total('frames_corrupted')} "
@@ -88,9 +95,11 @@ def _acquisition(acq: dict) -> str:
         sensor = f"{g['sensor']}: " if "sensor" in g else ""
         lines.append(f"  break at t={g.get('t', '?')} s, {sensor}{g.get('samples', '?')} "
                      f"sample(s): {g.get('cause', '?')}")
-    more = len(gaps) - SHOWN_BREAKS + unlisted
-    if more > 0:
-        lines.append(f"  ... and {more} more break(s) (the sidecar's acquisition.gaps)")
+    if len(gaps) > SHOWN_BREAKS:
+        lines.append(f"  ... and {len(gaps) - SHOWN_BREAKS} more in the sidecar's "
+                     "acquisition.gaps")
+    if unlisted:
+        lines.append(f"  ... and {unlisted} more counted, not listed")
     return "\n".join(lines)
 
 
