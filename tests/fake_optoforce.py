@@ -68,13 +68,19 @@ class FakeOptoForce:
         configured rate, by the host's clock).
     status : callable, optional
         Frame index after the configuration -> the frame's status word (default 0).
+    reply_delay_s : float
+        How long a configuration takes to act and be acknowledged (s); the DAQ streams on
+        as before meanwhile.
     """
 
     def __init__(self, path: Path, *, serial: str = "ISE0A129",
                  source: Callable[[int], tuple[int, ...]] | None = None,
                  corrupt_every: int = 0, garbage_every: int = 0, seed: int = 0,
-                 rate_error: float = 0.0, status: Callable[[int], int] | None = None) -> None:
+                 rate_error: float = 0.0, status: Callable[[int], int] | None = None,
+                 reply_delay_s: float = 0.0) -> None:
         self.rate_error = rate_error
+        self.reply_delay_s = reply_delay_s
+        self._due: list[tuple[float, ConfigCommand]] = []  # configurations not yet acted on
         self.status = status or (lambda k: 0)
         self.path = Path(path)
         self.serial = serial
@@ -163,9 +169,15 @@ class FakeOptoForce:
                 self._queue(SerialReply(self.serial).encode(), "other")
             elif isinstance(msg, ConfigCommand):
                 self.configs.append(msg)
-                self._queue(ConfigAck(0).encode(), "other")
-                self._speed, self._configured = msg.speed, msg.speed > 0
-                self._t_stream, self._emitted = time.monotonic(), 0
+                self._due.append((time.monotonic() + self.reply_delay_s, msg))
+
+    def _act(self) -> None:
+        """Act on, and acknowledge, each configuration whose time has come."""
+        while self._due and self._due[0][0] <= time.monotonic():
+            _, msg = self._due.pop(0)
+            self._queue(ConfigAck(0).encode(), "other")
+            self._speed, self._configured = msg.speed, msg.speed > 0
+            self._t_stream, self._emitted = time.monotonic(), 0
 
     def _emit(self) -> None:
         if self._speed == 0:
@@ -227,5 +239,6 @@ class FakeOptoForce:
                     except OSError:
                         pass  # nothing to read yet (EAGAIN) or no reader (EIO)
                     self._emit()
+                    self._act()
                     self._write(master)
             time.sleep(0.001)

@@ -76,6 +76,24 @@ def test_fake_daq_handshake_with_tare(tmp_path):
     assert len(got) > 50 and sum(f.lost_before for f in got) == 0
 
 
+def test_a_reconfiguration_while_streaming_is_acknowledged_and_the_stop_still_drains(tmp_path):
+    with FakeOptoForce(tmp_path / "tty", reply_delay_s=0.05) as fake:  # streams on 50 ms
+        sensor = OptoForceSensor(str(tmp_path / "tty"))
+        sensor.open()
+        try:
+            sensor.configure(1000, filter_code=2)
+            sensor.start()
+            time.sleep(0.2)
+            sensor.reconfigure(1000, filter_code=2)  # the reader sees its acknowledge
+            time.sleep(0.2)
+            sensor.stop(filter_code=2)  # waits for its own acknowledge, not the earlier one
+            got = sensor.frames()
+        finally:
+            sensor.close()
+    assert fake.configs == [ConfigCommand(1, 2, 0), ConfigCommand(1, 2, 0), ConfigCommand(0, 2, 0)]
+    assert len(got) == fake.frames_sent  # every frame sent before the stop is read
+
+
 def test_sensitivity_file(tmp_path):
     path = tmp_path / "sens.json"
     path.write_text(json.dumps({"ISE0A129": [400.9, 400.9, 400.9], "BAD": [1, -2, 3]}))

@@ -270,6 +270,7 @@ class OptoForceSensor:
         """
         if self.alive:
             try:
+                self._ack_seen.clear()  # an earlier acknowledge (a reconfiguration) is not this one
                 self._send(ConfigCommand(0, filter_code, 0).encode())
                 self._ack_seen.wait(REPLY_TIMEOUT_S)
             except AcquisitionError as exc:
