@@ -8,6 +8,8 @@ motor ``delay`` absorbs).
 """
 
 import json
+import os
+import time
 
 import numpy as np
 import pytest
@@ -66,6 +68,28 @@ def test_rub_writes_move_events_on_schedule(rubbed):
     assert np.all(late >= 0) and np.all(late < 0.02)  # on time, give or take a busy machine
     assert rubbed.metadata["label"] == "fake" and rubbed.duration_s > 3.0
     assert rubbed.extra["acquisition"]["frames_corrupted"] == 0
+
+
+def test_rub_commands_on_time_when_the_disk_is_slow(tmp_path, monkeypatch):
+    """The first command is due 50 ms after the first frame; the files' first writes must
+    not hold it back (each fsync here takes 0.15 s, as on a busy disk)."""
+    real_fsync = os.fsync
+
+    def slow_fsync(fd):
+        time.sleep(0.15)
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", slow_fsync)
+    with FakeOptoForce(tmp_path / "tty"):
+        result = CliRunner().invoke(app, [
+            "rub", "--sensor", str(tmp_path / "tty"), "--actuator", "sim", "--p1", "0",
+            "--p2", "100", "--motions", "1", "--dwell", "0.5", "--out", str(tmp_path / "rub"),
+            "--quiet"])
+    assert result.exit_code == 0, result.output
+    rec = read_recording(tmp_path / "rub", on_error="flag")
+    schedule = RubbingProtocol(0.0, 100.0, motions=1, dwell_s=0.5).schedule()
+    late = np.array([e.t for e in rec.events if e.kind == "move"]) - [t for t, _ in schedule]
+    assert late.size == len(schedule) and np.all(late >= 0) and np.all(late < 0.02), late
 
 
 def test_rub_segments_into_motions(rubbed):

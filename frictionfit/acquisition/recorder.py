@@ -64,14 +64,18 @@ class RecordingWriter:
         self._acquisition: dict[str, Any] = {"status": "recording"}
         self._attached: dict[str, Callable[[], Any]] = {}
         self._csv = None
+        self._started = False  # events added before start() are written by it
 
     def start(self) -> None:
-        """Write the sidecar, then the CSV header; both reach the disk. An existing
-        recording is refused (:func:`refuse_existing`) unless ``overwrite``."""
+        """Write the sidecar (with the events added so far), then the CSV header; both reach
+        the disk. An existing recording is refused (:func:`refuse_existing`) unless
+        ``overwrite``."""
         if not self.overwrite:
             refuse_existing(self.csv_path)
         with self._disk(self.csv_path.parent, "make the folder"):
             self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+        with self._lock:  # an event added from now on writes the sidecar itself
+            self._started = True
         self._write_sidecar({"status": "recording"})
         with self._disk(self.csv_path, "write"):
             self._csv = open(self.csv_path, "w", encoding="ascii")  # noqa: SIM115 (kept open)
@@ -102,11 +106,14 @@ class RecordingWriter:
             self._lines += lines
 
     def add_event(self, event: Event) -> None:
-        """Record a command (e.g. ``Event(t, "move", "p2")``); the sidecar is rewritten at
-        once, so a crash never loses an event that was sent."""
+        """Record a command (e.g. ``Event(t, "move", "p2")``); once :meth:`start` has run, the
+        sidecar is rewritten at once, so a crash never loses an event that was sent (before,
+        :meth:`start` writes it)."""
         with self._lock:
             self.events.append(event)
-        self._write_sidecar(self._acquisition)
+            started = self._started
+        if started:
+            self._write_sidecar(self._acquisition)
 
     def attach(self, key: str, snapshot: Callable[[], Any]) -> None:
         """Keep ``key`` in the sidecar as ``snapshot()`` returns it at every sidecar write
@@ -259,8 +266,10 @@ def record(
         Set it (e.g. from a SIGINT/SIGTERM handler) to end cleanly.
     on_start : callable, optional
         Called once as ``stop = on_start(t0, writer)`` when the recording starts, with
-        ``t0`` the host time (``time.monotonic()``) of sample 0; ``stop()`` is called at
-        the end. The rubbing protocol starts its command thread here.
+        ``t0`` the host time (``time.monotonic()``) of sample 0, before the files' first
+        writes (an event it adds meanwhile is written with the sidecar); ``stop()`` is
+        called at the end. The rubbing protocol starts its command thread here, so a slow
+        disk does not delay its first command.
     on_progress : callable, optional
         Called after every flush with the current ``acquisition`` summary.
     overwrite : bool, default False
@@ -281,9 +290,14 @@ def record(
                              overwrite=overwrite)
     merger = _Merger([len(s.channels) for s in streams])
     started = time.time()
+    # the protocol first: its schedule runs from the first frame (t0), and the files' first
+    # writes reach the disk (fsync) in their own time, which a busy disk makes long
+    stop_hook = on_start(t0, writer) if on_start is not None else None
     try:
         writer.start()
     except AcquisitionError as exc:
+        if stop_hook is not None:
+            stop_hook()
         for s in streams:
             s.close()
         with contextlib.suppress(AcquisitionError):  # say so where the sidecar can still go
@@ -291,7 +305,6 @@ def record(
         raise
     last_flush = time.monotonic()
     status, failure = "interrupted", None
-    stop_hook = on_start(t0, writer) if on_start is not None else None
     try:
         while not stop.is_set():
             _merge_polled(streams, merger, writer, t0)
