@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import typer
@@ -285,20 +287,9 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         raise typer.BadParameter(str(exc), param_hint="--model / --prior") from None
 
     def fitted_channels(rec):
-        """The channels of ``rec`` that can be fitted; each that cannot is skipped by name
-        (``strict``: the command stops), so one dead sensor does not cost the others."""
-        found = []
-        for ch in channels:
-            try:
-                found.append(measurement_data(rec, ch, stroke_mm=stroke_mm))
-            except ValueError as exc:
-                if strict or len(channels) == 1:
-                    raise
-                typer.echo(f"skipped {exc}", err=True)
-        if not found:
-            raise ValueError(f"{rec.name}: none of the channels {', '.join(channels)} can be "
-                             "fitted")
-        return found
+        """The channels of ``rec`` that can be fitted (:func:`_each_channel`)."""
+        return _each_channel(rec, channels, strict,
+                             lambda ch: measurement_data(rec, ch, stroke_mm=stroke_mm))
 
     items, problems = [], []
     for rec, found in _prepared(files, strict, fitted_channels):
@@ -334,6 +325,25 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         typer.echo(fit_report(result, 0))
 
 
+def _each_channel(rec, names: Sequence[str], strict: bool, take: Callable[[str], Any]
+                  ) -> list:
+    """``take(name)`` of each of ``names`` of ``rec``; a channel it refuses (a ValueError
+    naming it) is skipped by name on stderr, so one dead sensor does not cost the others
+    (``strict``, or the only channel asked: the refusal stops the recording). ValueError
+    when none is left."""
+    found = []
+    for name in names:
+        try:
+            found.append(take(name))
+        except ValueError as exc:
+            if strict or len(names) == 1:
+                raise
+            typer.echo(f"skipped {exc}", err=True)
+    if not found:
+        raise ValueError(f"{rec.name}: none of the channels {', '.join(names)} can be fitted")
+    return found
+
+
 def _trials(files: list[Path], strict: bool, channels: tuple[str, ...] = ()):
     """Motions x ``channels`` (default every channel) of ``files`` as
     :class:`~frictionfit.fit.Trials`, one batch per sample interval; each recording's
@@ -350,15 +360,14 @@ def _trials(files: list[Path], strict: bool, channels: tuple[str, ...] = ()):
         names = list(channels) or list(rec.channel_names)
         for name in names:
             rec.channel(name)  # a RecordingError naming a channel the recording lacks
-        dead = {p.channel: p for p in rec.problems if p.kind == "dead_channel"}
-        for name in (n for n in names if n in dead):
-            if strict or len(names) == 1:
-                raise ValueError(f"{rec.name}: channel {name!r}: {dead[name].detail}")
-            typer.echo(f"skipped {rec.name}: channel {name!r}: {dead[name].detail}", err=True)
-        keep = [n for n in names if n not in dead]
-        if not keep:
-            raise ValueError(f"{rec.name}: none of the channels {', '.join(names)} can be "
-                             "fitted")
+        dead = {p.channel: p.detail for p in rec.problems if p.kind == "dead_channel"}
+
+        def alive(name: str) -> str:
+            if name in dead:
+                raise ValueError(f"{rec.name}: channel {name!r}: {dead[name]}")
+            return name
+
+        keep = _each_channel(rec, names, strict, alive)
         check_newtons(rec.name, rec.channels, keep)
         cols = [rec.channel_names.index(n) for n in keep]
         return [replace(m, channels=tuple(m.channels[j] for j in cols), samples=m.samples[:, cols])
