@@ -194,11 +194,16 @@ class OptoForceSensor:
         """Send rate (Hz) and filter code again while the reader thread runs, and wait for
         the acknowledge (the reader sees it); no zeroing (a hardware zero taken now would
         tare a loaded sensor). AcquisitionError without an acknowledge."""
-        self._ack_seen.clear()
-        self._send(ConfigCommand(speed_code(rate_hz), filter_code, 0).encode())
-        if not self._ack_seen.wait(REPLY_TIMEOUT_S):
+        if not self._acknowledged(ConfigCommand(speed_code(rate_hz), filter_code, 0)):
             raise AcquisitionError(f"{self.url}: no configuration acknowledge within "
                                    f"{REPLY_TIMEOUT_S} s")
+
+    def _acknowledged(self, command: ConfigCommand) -> bool:
+        """Send ``command`` while the reader thread runs; whether the reader saw an
+        acknowledge after it within :data:`REPLY_TIMEOUT_S` (an earlier one does not count)."""
+        self._ack_seen.clear()
+        self._send(command.encode())
+        return self._ack_seen.wait(REPLY_TIMEOUT_S)
 
     def start(self) -> None:
         """Start reading frames into the queue in a background thread."""
@@ -270,9 +275,7 @@ class OptoForceSensor:
         """
         if self.alive:
             try:
-                self._ack_seen.clear()  # an earlier acknowledge (a reconfiguration) is not this one
-                self._send(ConfigCommand(0, filter_code, 0).encode())
-                self._ack_seen.wait(REPLY_TIMEOUT_S)
+                self._acknowledged(ConfigCommand(0, filter_code, 0))
             except AcquisitionError as exc:
                 self.error = str(exc)
         self._halt.set()
