@@ -65,8 +65,9 @@ def fit(
     strict: bool = typer.Option(False, help=STRICT_HELP),
     uncertainty: str = typer.Option("none", help="Posterior per row: none, laplace (quantiles "
                                     "of the fit's Gaussian, milliseconds a row), emcee (slow: "
-                                    "seconds a row, check uq_converged) or auto (Laplace; emcee "
-                                    "where Laplace is doubtful)."),
+                                    "about a second a motion, ~15 s a whole fit's row; check "
+                                    "uq_converged) or auto (Laplace; emcee where Laplace is "
+                                    "doubtful)."),
     chains: Path = typer.Option(None, help="--motions with emcee: save the chains to this HDF5 "
                                 "file."),
     solver: str = typer.Option("lm", help="--motions: lm (frictionfit's batched LM, fastest), "

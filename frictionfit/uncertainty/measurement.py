@@ -140,8 +140,8 @@ def measurement_posterior(
         fit, which carries each movement's own latency).
     method : {"laplace", "auto", "emcee"}
         See the module docstring. Laplace by default: on simulated measurements its 95 %
-        intervals hold the truth at about the nominal rate, while emcee takes ~15 s per
-        recording and mixes slowly where a relaxation branch sits at its bound
+        intervals hold the truth at about the nominal rate, while emcee takes ~30 s per
+        recording of two channels and mixes slowly where a relaxation branch sits at its bound
         (which ``"auto"`` sends to it).
     n_draws : int
         Laplace draws per row.
