@@ -14,7 +14,8 @@ from frictionfit.acquisition.actuator import SimulatedGripper
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.features._base import content_key
-from frictionfit.fit.measurement import _move_signs, fit_measurements, measurement_data
+from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit.fit.measurement_data import _move_signs
 from frictionfit.fit.motor import motor_timing
 from frictionfit.recording import MOTOR_POSITIONS, read_recording, write_recording
 from frictionfit.simulation.measurements import measurement_truth, simulate_measurements
