@@ -58,7 +58,6 @@ __all__ = ["MeasurementData", "fit_measurements", "fit_motions", "measurement_da
            "normal_fn", "profile_drops", "residual_fn", "stack_items"]
 
 
-
 @lru_cache(maxsize=16)
 def residual_fn(model: MeasurementModel, free: tuple[int, ...]):
     """``residual(u_free, data)`` over the ``free`` parameters (the others from the data's
