@@ -39,6 +39,7 @@ from frictionfit.calibration import (
 from frictionfit.errors import DatasetError
 from frictionfit.features import make_features
 from frictionfit.recording import Recording
+from frictionfit.transfer import RigTransfer
 
 __all__ = [
     "CLASSIFIERS",
@@ -71,9 +72,13 @@ PROTOCOLS = {
     "leave-one-person-out": "the same, by person",
     "leave-one-repetition-out": "the same, by repetition",
     "leave-one-pressure-out": "the same, by pressure",
+    "leave-one-rig-out": "the same, by metadata.rig: train on the other rigs, test on one; "
+                         "calibrated, the held-out rig's probabilities tempered by the spread "
+                         "between the training rigs (their sessions where one rig is left)",
 }
 #: Metadata keys reported per value in :attr:`Evaluation.breakdown` when present.
-CONDITIONS = ("layers", "material", "session", "person", "repetition", "pressure", "speed")
+CONDITIONS = ("layers", "material", "session", "person", "repetition", "pressure", "speed",
+              "rig")
 
 
 def make_classifier(name: str = "svm-ovo", *, seed: int = 0, probability: bool = False):
@@ -325,6 +330,12 @@ def splits(recordings: Sequence[Recording], protocol: str, y: np.ndarray, *,
     elif protocol.startswith("leave-one-") and protocol.endswith("-out"):
         key = protocol.removeprefix("leave-one-").removesuffix("-out")
         groups = labels_of(recordings, key).astype(str)
+        if key == "rig" and np.unique(groups).size < 2:
+            raise DatasetError(
+                f"protocol 'leave-one-rig-out' needs recordings of at least two rigs "
+                f"(metadata.rig); all are of {np.unique(groups).tolist()}: evaluate the "
+                "transfer to another rig with `frictionfit train` on this one and `frictionfit "
+                "predict` on the other, or on simulated rigs (`frictionfit simulate --rig`)")
         if np.unique(groups).size < 2:
             raise DatasetError(f"protocol {protocol!r} needs at least two values of {key!r}, "
                                f"found {np.unique(groups).tolist()}")
@@ -436,6 +447,8 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
         probability=calibrate)
     if calibrate:
         template = CalibratedPipeline(template, n_draws=n_draws, seed=seed)
+        if protocol == "leave-one-rig-out":  # the held-out rig is one the model never saw
+            template = RigTransfer(template)
     rows, fold_acc, proba_rows = [], [], []
     for fold, (train, test) in enumerate(splits(recordings, protocol, y, seed=seed,
                                                 n_splits=n_splits)):

@@ -1,10 +1,11 @@
 """Trained models on disk, in a format whose loading runs no code (``skops.io``).
 
 A model file holds the fitted pipeline and what it was trained on (feature set,
-dataset kind, channels with units, classes). :func:`load_model` refuses a file that
-holds any type outside :func:`trusted_types` (frictionfit's estimators and feature
-sets, and the scikit-learn parts skops does not trust by default), naming the file
-and the types: unpickling an untrusted file could run its code.
+dataset kind, channels with units, classes, and the rigs: ``rigs``, one entry per rig of
+:func:`frictionfit.transfer.rigs_of`, with its declared stroke and sample rate).
+:func:`load_model` refuses a file that holds any type outside :func:`trusted_types`
+(frictionfit's estimators and feature sets, and the scikit-learn parts skops does not
+trust by default), naming the file and the types: unpickling an untrusted file could run its code.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ def trusted_types() -> list[str]:
         "frictionfit.calibration.CalibratedPipeline",
         "frictionfit.calibration._Scores",
         "frictionfit.calibration._Temperature",
+        "frictionfit.transfer.RigTransfer",
         *_SKLEARN_TRUSTED,
     })
 

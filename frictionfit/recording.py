@@ -3,7 +3,8 @@
 The CSV has a first column ``t`` (seconds from the start) and one column per
 channel. The JSON sidecar holds ``sample_rate_hz``, ``channels`` (name, unit),
 ``events`` (time-stamped commands such as ``{"t": 0.5, "kind": "move",
-"target": "p2"}``), ``metadata`` (``label``, ``material``, ``session``, ...)
+"target": "p2"}``), ``metadata`` (``label``, ``material``, ``session``, ..., and what the
+lab knows about its rig: :data:`RIG_KEYS`, read as :attr:`Recording.rig`)
 and ``truth`` (generating parameters of simulated data). A recording made with
 an actuator may hold ``motor_positions``, the actuator's measured positions at
 the times they were read (see :meth:`Recording.motor_positions`). Unknown keys
@@ -35,6 +36,7 @@ __all__ = [
     "Event",
     "Problem",
     "Recording",
+    "Rig",
     "check_channel_names",
     "check_newtons",
     "kept_per_recording",
@@ -58,6 +60,59 @@ DEAD_CHANNEL_SPAN = 1e-12
 MOTOR_POSITIONS = "motor_positions"
 MOTOR_COLUMNS = ({"name": "t_request", "unit": "s"}, {"name": "t_reply", "unit": "s"},
                  {"name": "position", "unit": "counts"})
+#: ``metadata`` keys of what a lab knows about its rig, all optional: ``rig`` (str, the
+#: rig's name: recordings of one name share one rig), ``stroke_mm`` (the finger's nominal
+#: travel per movement, mm > 0: stiffness is then reported per mm of fingertip travel, else
+#: per stroke), ``grip_force_n`` (the closing force, N > 0) and ``motor_positions_counts``
+#: (the motor's named target positions, e.g. ``{"p1": 1800, "p2": 2300}``, in counts).
+RIG_KEYS = ("rig", "stroke_mm", "grip_force_n", "motor_positions_counts")
+
+
+@dataclass(frozen=True)
+class Rig:
+    """What a recording's sidecar declares about its rig (``None``: not declared).
+
+    ``name`` (``metadata.rig``), ``stroke_mm`` (mm, the nominal fingertip travel of one
+    movement), ``grip_force_n`` (N) and ``motor_positions_counts`` (target name ->
+    counts); :data:`RIG_KEYS`.
+    """
+
+    name: str | None = None
+    stroke_mm: float | None = None
+    grip_force_n: float | None = None
+    motor_positions_counts: dict[str, float] | None = None
+
+    @classmethod
+    def from_metadata(cls, metadata: dict[str, Any], path: PathType = "recording") -> Rig:
+        """The rig facts in ``metadata``; :class:`~frictionfit.errors.RecordingError` naming
+        ``path`` and the key for a value of the wrong kind (a non-positive stroke, ...)."""
+        name = metadata.get("rig")
+        if name is not None and not isinstance(name, str):
+            raise RecordingError(f"metadata.rig must be a name (a string), not {name!r}",
+                                 path=path)
+        values = {k: _positive(metadata, k, path) for k in ("stroke_mm", "grip_force_n")}
+        positions = metadata.get("motor_positions_counts")
+        if positions is not None:
+            if not isinstance(positions, dict) or not all(
+                    _is_number(v) for v in positions.values()):
+                raise RecordingError("metadata.motor_positions_counts must map target names "
+                                     f"to positions in counts, not {positions!r}", path=path)
+            positions = {str(k): float(v) for k, v in positions.items()}
+        return cls(name, motor_positions_counts=positions, **values)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _positive(metadata: dict[str, Any], key: str, path: PathType) -> float | None:
+    """``metadata[key]`` as a positive float (None when absent); RecordingError else."""
+    v = metadata.get(key)
+    if v is None:
+        return None
+    if not _is_number(v) or v <= 0:
+        raise RecordingError(f"metadata.{key} must be a positive number, not {v!r}", path=path)
+    return float(v)
 
 
 @dataclass(frozen=True)
@@ -138,7 +193,8 @@ class Recording:
         order.
     metadata : dict
         ``label`` (the class to learn), ``material``, ``layers``, ``session``,
-        ``trial`` and any other free key/values.
+        ``trial``, the rig's facts (:data:`RIG_KEYS`: ``rig``, ``stroke_mm``, ...; read
+        as :attr:`rig`) and any other free key/values.
     truth : dict
         Generating parameters, for simulated data only.
     name : str
@@ -224,6 +280,17 @@ class Recording:
     def label(self) -> Any:
         """``metadata["label"]``: the class to learn, or None."""
         return self.metadata.get("label")
+
+    @property
+    def rig(self) -> Rig:
+        """What the sidecar declares about the rig (:class:`Rig`; :data:`RIG_KEYS`)."""
+        return Rig.from_metadata(self.metadata, self.name)
+
+    @property
+    def stroke_mm(self) -> float | None:
+        """``metadata["stroke_mm"]``: the rig's nominal fingertip travel per movement (mm),
+        or None when not declared (stiffness is then per stroke, not per mm)."""
+        return self.rig.stroke_mm
 
     @property
     def grid_slots(self) -> np.ndarray:
@@ -512,6 +579,7 @@ def _read_sidecar(json_path: Path) -> dict[str, Any]:
         if not isinstance(ch, dict) or "name" not in ch or "unit" not in ch:
             raise RecordingError(f"channels[{i}] needs 'name' and 'unit', got {ch!r}",
                                  path=json_path)
+    Rig.from_metadata(side.get("metadata") or {}, json_path)  # its facts, checked
     return side
 
 

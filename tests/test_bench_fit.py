@@ -50,6 +50,10 @@ def test_quick_run_reports_every_summary_number():
     for peer in meas["peers"].values():
         assert peer["median_cost_rel_diff"] <= COST_TIE
     assert meas["peers"]["scipy-jax"]["n_recordings"] == 8  # every recording, up to PEER_N
+    rigs = out["summary"]["rigs"]  # the material through each simulated rig
+    assert set(rigs) == {"sim-a", "sim-b", "sim-c"}
+    assert all(r["n_recordings"] == 8 and set(r["median_rel_error_by_param"]) >= {
+        "k", "f_kin", "relax_frac", "tau"} for r in rigs.values())
 
 
 @pytest.fixture(scope="module")

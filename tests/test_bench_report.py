@@ -170,3 +170,15 @@ def test_record_results_adds_a_dated_section_above_the_older_ones(tmp_path):
     text = path.read_text()
     assert text.index("## 2026-11-24: `frictionfit evaluate --all`") < text.index("## 2026-01-01")
     assert "| physical | 0.9405 |" in text and "cores" in text and text.startswith("# Measured")
+
+
+def test_the_material_on_simulated_rigs_is_one_row_per_rig():
+    meas = {"n_recordings": 35, "converged_rate": 0.9,
+            "median_rel_error_by_param": {"k": 0.3, "f_kin": 0.02, "relax_frac": 0.5,
+                                          "tau": 0.25, "ramp": 0.01}}
+    rigs = {"sim-a": meas, "sim-b": dict(meas, converged_rate=1.0)}
+    md = to_markdown(merge([dict(FIT, summary=dict(FIT["summary"], rigs=rigs))]))
+    table = md.split("## fit: the material on simulated rigs")[1]
+    assert "| rig | measurements | converged | k | f_kin | relax_frac | tau |" in table
+    assert "| sim-a | 35 | 0.9 | 0.3 | 0.02 | 0.5 | 0.25 |" in table
+    assert "| sim-b | 35 | 1 | 0.3 | 0.02 | 0.5 | 0.25 |" in table

@@ -140,3 +140,33 @@ def test_the_features_fits_take_no_second_start_from_their_batch(monkeypatch):
     recs = simulate_measurements([(1, "paper-2", 1)], seed=7)
     FittedFeatures(cache=False).fit_transform(recs)
     assert seen == [False]
+
+
+def _with_stroke(rec, stroke_mm):
+    return dataclasses.replace(rec, metadata=rec.metadata | {"stroke_mm": stroke_mm})
+
+
+def test_stiffness_is_per_mm_of_the_declared_stroke_and_named_per_stroke_without_one():
+    rec, = simulate_measurements([(1, "paper-2", 1)], seed=7)
+    bare = FittedFeatures(channels=("index_x",), cache=False)
+    row = bare.fit_transform([rec])[0]
+    names = list(bare.get_feature_names_out())
+    assert "index_x:fit_k [log10 N/stroke]" in names  # no stroke declared: no false N/mm
+    assert "index_x:fit_drag [log10 N s/stroke]" in names
+    declared = FittedFeatures(channels=("index_x",), cache=False)
+    row_mm = declared.fit_transform([_with_stroke(rec, 13.0)])[0]
+    assert "index_x:fit_k [log10 N/mm]" in list(declared.get_feature_names_out())
+    per_stroke = dict(zip(names, row, strict=True))
+    per_mm = dict(zip(declared.get_feature_names_out(), row_mm, strict=True))
+    # the same fit: k over the stroke, the friction levels as they are
+    assert per_mm["index_x:fit_k [log10 N/mm]"] == pytest.approx(
+        per_stroke["index_x:fit_k [log10 N/stroke]"] - np.log10(13.0), abs=1e-12)
+    assert per_mm["index_x:fit_f_held [log10 N]"] == per_stroke["index_x:fit_f_held [log10 N]"]
+    with pytest.raises(ValueError, match="these do not \\(declare metadata.stroke_mm\\)"):
+        declared.transform([rec])
+
+
+def test_recordings_with_and_without_a_stroke_are_not_mixed():
+    a, b = simulate_measurements([(1, "paper-2", 1), (1, "carpet-1", 1)], seed=7)
+    with pytest.raises(ValueError, match=r"1 recording\(s\) declare no rig stroke.*s1_carpet"):
+        FittedFeatures(cache=False).fit([_with_stroke(a, 9.0), b])

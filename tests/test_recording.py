@@ -10,6 +10,7 @@ from frictionfit.recording import (
     DatasetWarning,
     Event,
     Recording,
+    Rig,
     check_newtons,
     read_dataset,
     read_recording,
@@ -339,3 +340,39 @@ def test_lab_dataset_reads_with_problems_flagged(shared):
     assert len(recs) == 420
     assert {r.label for r in recs} and len({r.label for r in recs}) == 35
     assert any(p.kind == "nonfinite" for r in recs for p in r.problems)
+
+
+def test_rig_facts_are_read_from_the_metadata(tmp_path, rng):
+    rec = _rec(rng)
+    assert rec.rig == Rig() and rec.stroke_mm is None  # nothing declared: nothing assumed
+    rec.metadata.update(rig="lab-2", stroke_mm=9, grip_force_n=1.5,
+                        motor_positions_counts={"p1": 1800, "p2": 2300})
+    write_recording(rec, tmp_path / rec.name)
+    back = read_recording(tmp_path / rec.name)
+    assert back.rig == Rig("lab-2", 9.0, 1.5, {"p1": 1800.0, "p2": 2300.0})
+    assert back.stroke_mm == 9.0 and isinstance(back.stroke_mm, float)
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("stroke_mm", 0, r"metadata\.stroke_mm must be a positive number, not 0"),
+    ("stroke_mm", "13 mm", r"metadata\.stroke_mm must be a positive number, not '13 mm'"),
+    ("stroke_mm", True, r"metadata\.stroke_mm must be a positive number"),
+    ("grip_force_n", -1.0, r"metadata\.grip_force_n must be a positive number, not -1\.0"),
+    ("rig", 2, r"metadata\.rig must be a name"),
+    ("motor_positions_counts", [1, 2], r"motor_positions_counts must map target names"),
+])
+def test_bad_rig_facts_name_the_file_and_key(tmp_path, rng, key, value, match):
+    rec = _rec(rng)
+    rec.metadata[key] = value
+    write_recording(rec, tmp_path / rec.name)
+    with pytest.raises(RecordingError, match=f"{rec.name}.json.*{match}"):
+        read_recording(tmp_path / rec.name)
+    with pytest.raises(RecordingError, match=match):
+        _ = rec.rig
+
+
+def test_the_lab_datasets_declare_their_strokes(shared):
+    for folder, stroke in (("rubbing-lab", 13.0), ("rubbing-lab-B", 9.0)):
+        path = next((shared / "datasets" / folder).glob("*.json"))
+        rec = read_recording(path, on_error="flag")
+        assert rec.stroke_mm == stroke and rec.rig.name == folder

@@ -208,6 +208,9 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     repetitions; ``compile_s`` is the first call of ours minus a steady one. The full run
     adds ``summary["measurements_motor_reads"]``: the same measurements with the motor's
     position read at 50 Hz, each movement's timing taken from the reads (no peers).
+    ``summary["rigs"]``: the recovery on each simulated rig of :data:`BENCH_RIGS` (35
+    measurements each, one session of every class; 8 with ``quick``; no peers): the
+    material's parameters through each rig's stroke, motor, finger and sensors.
     """
     from frictionfit.bench.measurement import RECOVERY_N, recovery
 
@@ -220,7 +223,21 @@ def run(*, quick: bool = False, seed: int = 0) -> dict:
     if not quick:
         out["summary"]["measurements_motor_reads"] = recovery(n, seed=seed, n_peer=0,
                                                               position_rate_hz=50.0)
+    out["summary"]["rigs"] = rig_recovery(8 if quick else 35, seed)
     return out
+
+
+#: The simulated rigs ``bench fit`` scores the recovery on.
+BENCH_RIGS = ("sim-a", "sim-b", "sim-c")
+
+
+def rig_recovery(n: int, seed: int = 0, rigs: tuple[str, ...] = BENCH_RIGS) -> dict:
+    """Per simulated rig: :func:`~frictionfit.bench.measurement.recovery` of ``n``
+    measurements made on it (no peers)."""
+    from frictionfit.bench.measurement import recovery
+    from frictionfit.simulation.rigs import rig_for
+
+    return {name: recovery(n, seed=seed, n_peer=0, rig=rig_for(name)) for name in rigs}
 
 
 def measure(name: str, n: int, n_peer: int, pool: int, reps: int, *, grid: bool,

@@ -28,6 +28,7 @@ from frictionfit.simulation.measurements import (
     motor_profile,
     simulate_measurements,
 )
+from frictionfit.simulation.rigs import DEFAULT, SimulatedRig
 
 __all__ = ["COST_TIE", "KEY_PARAMS", "PEER_N", "RECOVERY_N", "numpy_predict", "numpy_residual",
            "recovery"]
@@ -50,7 +51,8 @@ COST_TIE = 1e-3
 
 
 def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
-             n_peer: int = PEER_N, n_numpy: int = 2, position_rate_hz: float = 0.0) -> dict:
+             n_peer: int = PEER_N, n_numpy: int = 2, position_rate_hz: float = 0.0,
+             rig: SimulatedRig = DEFAULT) -> dict:
     """Fit ``n`` simulated measurements (every class in turn, in session 1, then 2, ...;
     one trial each) twice; the second call is timed. Returns the summary dict of the
     ``measurements`` block of ``bench fit``: errors per parameter, the share of fits whose
@@ -58,9 +60,10 @@ def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
     absent from the chosen law counts as not covered), speed, and ``peers``: scipy's LM on
     the first ``n_peer`` recordings, on the NumPy objective on the first ``n_numpy``
     (seconds per recording each). ``position_rate_hz`` > 0: the measurements carry the
-    motor's position reads, and the fits take each movement's timing from them."""
+    motor's position reads, and the fits take each movement's timing from them. ``rig``:
+    the simulated rig the measurements are made on."""
     specs = [(1 + i // len(CLASSES), CLASSES[i % len(CLASSES)], 1) for i in range(n)]
-    recs = simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz)
+    recs = simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz, rig=rig)
     items = [measurement_data(r, channel) for r in recs]
     start = time.perf_counter()
     fit_measurements(items, progress=False)

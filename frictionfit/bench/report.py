@@ -151,6 +151,8 @@ def to_markdown(bench: Mapping) -> str:
             meas = stage.get("summary", {}).get(key)
             if meas:
                 lines += _measurements(f"{name}: {what}", meas)
+        if stage.get("summary", {}).get("rigs"):
+            lines += _rigs(f"{name}: the material on simulated rigs", stage["summary"]["rigs"])
     for name, stage in bench.get("stages", {}).items():
         for model, scores in stage.get("summary", {}).get("lab", {}).items():
             lines += _lab(f"{name}, {model}: {stage.get('dataset', 'lab recordings')}", scores)
@@ -184,6 +186,21 @@ def to_markdown(bench: Mapping) -> str:
 #: Summary keys of the whole-measurement blocks -> their headings.
 MEASUREMENT_BLOCKS = {"measurements": "whole measurements",
                       "measurements_motor_reads": "whole measurements, motor read at 50 Hz"}
+
+
+#: The material's parameters whose recovery is compared between simulated rigs.
+RIG_SCORED = ("k", "f_kin", "relax_frac", "tau")
+
+
+def _rigs(heading: str, rigs: Mapping) -> list[str]:
+    """One row per simulated rig: median |relative error| of the material's parameters."""
+    lines = [f"## {heading}", "", "Whole measurements (index_x) made on each rig; median "
+             "|relative error| against the material's truth (converged fits).", ""]
+    return lines + _table(
+        ["rig", "measurements", "converged", *RIG_SCORED],
+        [[rig, m["n_recordings"], m["converged_rate"],
+          *(m["median_rel_error_by_param"].get(p) for p in RIG_SCORED)]
+         for rig, m in rigs.items()])
 
 
 def _measurements(heading: str, meas: Mapping) -> list[str]:

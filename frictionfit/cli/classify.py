@@ -101,11 +101,14 @@ def train(
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier.
 
     The model is saved with skops (loading it runs no code), with what it was trained
-    on: feature set, dataset kind, channels and classes."""
+    on: feature set, dataset kind, channels, classes and rigs (metadata.rig, the declared
+    stroke, the sample rate). Calibrated, its probabilities on another rig are tempered by
+    the spread between the training rigs (between sessions where there is one rig)."""
     from frictionfit.calibration import CalibratedPipeline
     from frictionfit.classify import classes_of, make_pipeline, projection_for
     from frictionfit.errors import FrictionfitError
     from frictionfit.model_file import save_model
+    from frictionfit.transfer import RigTransfer, rigs_of
 
     check_writable(out, "--out")
     features = _features_for(dataset, features)
@@ -115,11 +118,12 @@ def train(
         pipeline = make_pipeline(features, classifier, seed=seed,
                                  project=projection_for(recordings, _projection(project)),
                                  probability=calibrate)
-        model = CalibratedPipeline(pipeline, n_draws=draws, seed=seed) if calibrate else pipeline
+        model = (RigTransfer(CalibratedPipeline(pipeline, n_draws=draws, seed=seed))
+                 if calibrate else pipeline)
         model.fit(recordings, y)
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
-    fitted = model.pipeline_ if calibrate else model
+    fitted = model.model_.pipeline_ if calibrate else model
     save_model({
         "pipeline": model,
         "features": features,
@@ -130,6 +134,7 @@ def train(
         "dataset_kind": dataset.partition(":")[0],
         "channels": [[c.name, c.unit] for c in recordings[0].channels],
         "n_train": len(recordings),
+        "rigs": rigs_of(recordings),
         "frictionfit_version": _version(),
     }, out)
     typer.echo(f"trained {features} + {classifier} on {len(recordings)} recordings "
@@ -183,6 +188,7 @@ def predict(
               f"({saved['features']} features), not {kind!r}")
     recordings = _load(dataset, strict)
     _check_channels(saved, model, recordings)
+    _say_rigs(saved, model, recordings)
     try:
         predicted = pipeline.predict(recordings)
         proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
@@ -209,6 +215,8 @@ def predict(
                        err=True)
     if top is not None:
         table = pd.concat([table, top], axis=1)
+    if hasattr(pipeline, "seen"):
+        table["rig_seen"] = pipeline.seen(recordings)
     table["problems"] = [problems_of(r) for r in recordings]
     table.to_csv(out, index=False)
     typer.echo(f"{len(table)} predictions -> {out}")
@@ -221,6 +229,29 @@ def predict(
                        f"(top probability below {abstain:g}); accuracy over the "
                        f"{int(decided.sum())} decided")
         typer.echo(f"accuracy: {acc:.3f}")
+
+
+def _say_rigs(saved: dict, model: Path, recordings: list) -> None:
+    """Say on stderr which recordings are of a rig ``model`` was not trained on, what
+    differs, and how their probabilities are tempered."""
+    from frictionfit.transfer import describe_rig, unseen_rigs
+
+    trained = saved.get("rigs")
+    if trained is None:
+        typer.echo(f"{model} does not record the rigs it was trained on (trained before "
+                   "models did): its probabilities assume the training rig", err=True)
+        return
+    notes = unseen_rigs(trained, recordings)
+    for note in notes:
+        typer.echo(note, err=True)
+    if notes:
+        pipeline = saved["pipeline"]
+        beta = getattr(pipeline, "shift_beta_", None)
+        typer.echo(f"trained on {', '.join(describe_rig(r) for r in trained)}; "
+                   + (f"their probabilities are tempered (log-probabilities x {beta:.3g}, "
+                      f"from held-out {pipeline.shift_groups_}s of the training data)"
+                      if beta is not None else "their probabilities are not tempered "
+                      "(an uncalibrated model)"), err=True)
 
 
 def _check_channels(saved: dict, model: Path, recordings: list) -> None:
@@ -240,7 +271,8 @@ def evaluate(
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     protocol: str = typer.Option("kfold", help="kfold, mixed-5fold, person-dependent, holdout, "
-                                 "leave-one-{session,person,repetition,pressure}-out."),
+                                 "leave-one-{session,person,repetition,pressure,rig}-out "
+                                 "(rig: metadata.rig; needs recordings of two rigs)."),
     project: str = typer.Option("auto", help=PROJECT_HELP),
     target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),
     out: Path = typer.Option(None, help="Save the scores (.csv)."),

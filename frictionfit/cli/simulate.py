@@ -41,6 +41,10 @@ def simulate(
         0.0, min=0.0, help="Also read the motor's position this often (Hz), as `frictionfit "
         "rub --position-rate` does; 0: no reads, as in the lab's recordings. The whole fits "
         "then take each movement's timing from the reads."),
+    rig: str = typer.Option("default", help="The simulated rig: default (no rig effect), "
+                            "sim-a, sim-b or sim-c (strokes, motor speeds, fingers' compliance, "
+                            "play and creep, sensors, sample rates of three lab-like rigs; "
+                            "frictionfit.simulation.rigs)."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
     """Write simulated rubbing measurements (35 classes x sessions x measurements-per-class)."""
@@ -53,7 +57,11 @@ def simulate(
 
     from frictionfit.simulation.materials import CLASSES
     from frictionfit.simulation.measurements import simulate_dataset
+    from frictionfit.simulation.rigs import RIGS
 
+    if rig not in RIGS:
+        raise typer.BadParameter(f"unknown rig {rig!r}; choose from {', '.join(RIGS)}",
+                                 param_hint="--rig")
     labels = [c.strip() for c in classes.split(",") if c.strip()] or list(CLASSES)
     unknown = [c for c in labels if c not in CLASSES]
     if unknown:
@@ -64,10 +72,10 @@ def simulate(
     with Progress(disable=not progress, transient=True) as bar:
         task = bar.add_task("simulating measurements", total=total)
         paths = simulate_dataset(out, seed, sessions, measurements_per_class, labels,
-                                 position_rate_hz=motor_positions,
+                                 position_rate_hz=motor_positions, rig=RIGS[rig],
                                  progress=lambda n: bar.advance(task, n))
-    typer.echo(f"wrote {len(paths)} measurements ({len(labels)} classes, {sessions} session(s)) "
-               f"to {out}")
+    typer.echo(f"wrote {len(paths)} measurements ({len(labels)} classes, {sessions} session(s)"
+               + (f", rig {rig}" if rig != "default" else "") + f") to {out}")
 
 
 @app.command("gestures", short_help="Simulated touch gestures on a textile skin.")

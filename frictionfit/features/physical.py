@@ -7,12 +7,15 @@ rubbing direction (``thumb_x``, ``index_x``) is fitted at once by
 :func:`frictionfit.fit.measurement.fit_measurements` (rig, sensor and one contact law,
 the law's state carried from stroke to stroke; ``decimate`` samples per point while the
 finger moves).
-Kept, in log10 where positive: ``k`` (N/mm per nominal mm of stroke), the static
+Kept, in log10 where positive: ``k`` (N/mm of fingertip travel where every recording
+declares its rig's stroke, ``metadata.stroke_mm``; N per stroke, and named so, where none
+does; a mix is an error: the two do not compare), the static
 friction level ``f_static = f_kin + f_static_excess`` (N), and what the fit derives
 (:mod:`frictionfit.fit.derived`): the held force ``f_held`` (N), the peak force ``f_peak``
 (N) and the ``onset_rate`` (N/s) as the sensor sees them, and the stick-slip intensity
 ``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); ``relax_frac`` (1), ``tau`` (s) and
-``drag`` (N s/mm); never the sensor's offset, drift or leak, nor the motor's timing.
+``drag`` (N s/mm, or N s/stroke as ``k``); never the sensor's offset, drift or leak, nor
+the motor's timing.
 ``with_stderr=True`` adds each one's standard error (of the log10 where logged).
 Each lateral channel (``thumb_y``, ``index_y``, with its finger's rubbing channel) gets
 what :func:`frictionfit.fit.lateral.fit_lateral` finds: the ``gain`` (1, the lateral force
@@ -52,7 +55,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from frictionfit.errors import RecordingError, Status
-from frictionfit.features._base import FeatureWarning, RecordingFeatures
+from frictionfit.features._base import FeatureWarning, RecordingFeatures, _as_list
 from frictionfit.features._rubbing import (
     PHASES,
     RUBBING_CHANNELS,
@@ -74,6 +77,8 @@ FITTED = ("k", "f_static", "f_held", "f_peak", "onset_rate", "slip_noise", "rela
           "drag")
 _DERIVED_UNITS = {"f_static": "N", "f_held": "N", "f_peak": "N", "onset_rate": "N/s",
                   "slip_noise": "N"}
+#: Fitted quantities per unit of fingertip travel: per mm where the stroke is declared.
+_PER_TRAVEL = ("k", "drag")
 _STDERR = "_stderr ["  # marks a standard error's column: ``<name>_stderr [<unit>]``
 #: The smallest ``slip_noise`` told apart (N): the sensor's resolution, about 1 mN.
 SLIP_FLOOR_N = 1e-3
@@ -205,7 +210,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 28  # 28: a dead channel not fitted, a clipped one fitted without its clips
+    _version = 29  # 29: k and drag per mm of the declared stroke
     _view_params = ("with_stderr",)  # the stderrs are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
     #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the
@@ -273,6 +278,30 @@ class PhysicalFeatures(RecordingFeatures):
         if not names:
             raise ValueError("physical features: set fitted and/or measured")
         return names
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """Readable feature names with units; ``k`` and ``drag`` per stroke (``N/stroke``,
+        ``N s/stroke``) where the training recordings declare no stroke."""
+        names = self._names()
+        if getattr(self, "stroke_declared_", True) is False:
+            names = [_per_stroke(n) for n in names]
+        return np.asarray(names, dtype=object)
+
+    def _rows(self, recordings: Sequence[Recording]) -> np.ndarray:
+        recordings = _as_list(recordings)
+        declared = _stroke_declared(recordings) if self.fitted else None
+        trained = getattr(self, "stroke_declared_", None)
+        if declared is not None and trained is not None and declared != trained:
+            raise ValueError(
+                "physical features: trained on recordings that " + (
+                    "declare their rig's stroke (k in N/mm); these do not (declare "
+                    "metadata.stroke_mm)" if trained else
+                    "declare no stroke (k in N/stroke); these declare one: retrain"))
+        return super()._rows(recordings)
+
+    def _fit_rows(self, rows: np.ndarray, X: Sequence[Recording]) -> None:
+        super()._fit_rows(rows, X)
+        self.stroke_declared_ = _stroke_declared(_as_list(X)) if self.fitted else None
 
     def _measured_kept(self) -> tuple[tuple[str, str], ...]:
         return MEASURED if self.shape else MEASURED[:N_BASIC]
@@ -365,8 +394,9 @@ class PhysicalFeatures(RecordingFeatures):
             ok.add(Status.MAX_STEPS)
         for k, (i, ch) in enumerate(where):
             good = Status(int(res.status[k])) in ok
+            per_mm = res.stroke_mm / (items[k].stroke_mm or 1.0)  # travel unit -> mm
             out[i][ch] = (np.asarray(self._fitted_row(res.params(k), res.stderrs(k),
-                                                      res.derived[k])) if good
+                                                      res.derived[k], per_mm)) if good
                           else np.full(width, np.nan))
             lateral = next((c for c, of in LATERAL_CHANNELS.items()
                             if of == ch and c in self.channels), None)
@@ -392,9 +422,14 @@ class PhysicalFeatures(RecordingFeatures):
         got["slip_noise"] = (np.log10(noise), se / (noise * np.log(10)))
         return np.array([v for p in LATERAL_KEPT for v in got[p]])
 
-    def _fitted_row(self, values: dict, stderr: dict, derived: dict) -> list[float]:
-        """Log10 of the positive parameters, each followed by its stderr (of the log10)."""
+    def _fitted_row(self, values: dict, stderr: dict, derived: dict,
+                    per_mm: float = 1.0) -> list[float]:
+        """Log10 of the positive parameters, each followed by its stderr (of the log10);
+        the per-travel ones (``k``, ``drag``) times ``per_mm`` (fit's travel unit over the
+        declared stroke)."""
         values, stderr = dict(values), dict(stderr)
+        for name in _PER_TRAVEL:
+            values[name], stderr[name] = values[name] * per_mm, stderr[name] * per_mm
         for name, (v, se) in derived.items():
             values[name], stderr[name] = v, se
         values["slip_noise"] = max(values["slip_noise"], SLIP_FLOOR_N)
@@ -404,6 +439,25 @@ class PhysicalFeatures(RecordingFeatures):
             row += ([np.log10(values[p]), stderr[p] / (values[p] * np.log(10))] if logged
                     else [values[p], stderr[p]])
         return row
+
+
+def _stroke_declared(recordings: Sequence[Recording]) -> bool | None:
+    """Whether every recording declares its rig's stroke (None: no recordings); ValueError
+    naming those without it where only some do (their ``k`` would not compare)."""
+    declared = [r.stroke_mm is not None for r in recordings]
+    if any(declared) and not all(declared):
+        missing = [r.name for r, d in zip(recordings, declared, strict=True) if not d]
+        raise ValueError(f"physical features: {len(missing)} recording(s) declare no rig "
+                         f"stroke (metadata.stroke_mm) where the others do "
+                         f"({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}): "
+                         "k per mm and per stroke do not compare")
+    return all(declared) if declared else None
+
+
+def _per_stroke(name: str) -> str:
+    """``name`` of a per-travel feature with its unit per stroke instead of per mm."""
+    base = name.split(":")[-1].removeprefix("fit_")
+    return name.replace("/mm]", "/stroke]") if base.startswith(_PER_TRAVEL) else name
 
 
 class FittedFeatures(PhysicalFeatures):

@@ -41,7 +41,11 @@ class MeasurementData:
     (:func:`~frictionfit.fit.motor.motor_timing`; ``None`` when the recording has no
     position reads), which then set ``commands``, ``stretch`` and the rig's starting values;
     ``clipped``: how many samples sat in a run at the channel's extreme (a saturated sensor)
-    or were flagged overloaded by the DAQ: left out, and the fit's status says so.
+    or were flagged overloaded by the DAQ: left out, and the fit's status says so;
+    ``stroke_mm``: the rig's nominal stroke the recording declares (mm, ``None``: not
+    declared), a fact about the rig that the fit does not use (its travel is in the model's
+    ``stroke_mm``, one nominal unit per movement): ``k`` per mm is ``k * model stroke /
+    stroke_mm``.
     """
 
     name: str
@@ -58,6 +62,7 @@ class MeasurementData:
     stretch: np.ndarray | None = None
     motor: MotorTiming | None = None
     clipped: int = 0
+    stroke_mm: float | None = None
 
     def __post_init__(self):
         if self.stretch is None:  # frozen: set once, so every reader sees an array
@@ -194,7 +199,7 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
     noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
     data = MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
                            commands, signs, direction, guess, rec.metadata.get("session"),
-                           clipped=int(clipped.sum()))
+                           clipped=int(clipped.sum()), stroke_mm=rec.stroke_mm)
     motor = motor_timing(rec, commands, signs)
     return data if motor is None else _driven_by_motor(data, motor)
 

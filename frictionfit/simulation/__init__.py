@@ -3,7 +3,8 @@
 Modules: :mod:`~frictionfit.simulation.trials` (one-channel motions),
 :mod:`~frictionfit.simulation.measurements` (whole lab-like measurements with
 faults; ``frictionfit simulate``), :mod:`~frictionfit.simulation.materials` (the
-35-class material library), :mod:`~frictionfit.simulation.gestures` (touch
+35-class material library), :mod:`~frictionfit.simulation.rigs` (the rigs the measurements
+are made on; ``frictionfit simulate --rig``), :mod:`~frictionfit.simulation.gestures` (touch
 gestures; ``frictionfit simulate gestures``). Nothing here imports JAX until a
 force is computed.
 """

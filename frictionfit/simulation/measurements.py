@@ -24,6 +24,10 @@ Effects the fitted family does not model:
 - transmission faults in about 1 motion in 6: dropped rows, NaN bursts, stuck values,
   spikes of up to tens of newtons.
 
+Each measurement is made on a rig (:mod:`~frictionfit.simulation.rigs`: stroke, motor
+speed, the finger's compliance, play and creep, sensor gains, the DAQ's low-pass and rate);
+the default rig adds none of these.
+
 On request the motor's position is read as ``frictionfit rub`` reads it (a few ms of read
 latency, whole counts), into the sidecar's ``motor_positions``.
 
@@ -36,6 +40,7 @@ classes are simulated with it.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from functools import lru_cache
 from pathlib import Path
 
@@ -57,6 +62,7 @@ from frictionfit.simulation.materials import (
     draw_parameters,
     material_for,
 )
+from frictionfit.simulation.rigs import DEFAULT, SimulatedRig
 
 __all__ = ["CHANNELS", "FAULT_KINDS", "measurement_truth", "simulate_dataset",
            "simulate_measurements"]
@@ -100,10 +106,11 @@ def motor_profile(t: np.ndarray, start: float, duration: float, accel: float
     return rise + cruise + fall, vel
 
 
-def _session(seed: int, session: int) -> dict:
-    """Rig state of one day: motor, gains, offsets, noise; drawn from ``(seed, session)``."""
+def _session(seed: int, session: int, rig: SimulatedRig = DEFAULT) -> dict:
+    """Rig state of one day: motor, gains, offsets, noise; drawn from ``(seed, session)``,
+    scaled by ``rig``."""
     rng = np.random.default_rng([seed, session, 0xD1A])
-    return {
+    day = {
         "session": session,
         "delay_s": rng.uniform(0.015, 0.035),
         "duration_s": rng.uniform(0.10, 0.15),
@@ -120,6 +127,14 @@ def _session(seed: int, session: int) -> dict:
         "hum_n": float(rng.uniform(0.001, 0.005)) if rng.random() < 0.5 else 0.0,
         "quantum_n": float(rng.choice([0.001, 0.002])),
     }
+    if rig == DEFAULT:  # bit for bit the simulator without rigs
+        return day
+    day["duration_s"] /= rig.motor_speed
+    day["stroke_mm"] *= rig.stroke_mm or 1.0
+    day["gains"] = [g * rig.gain_scale for g in day["gains"]]
+    day["noise_sd_n"] *= rig.noise_scale
+    day["hum_n"] *= rig.noise_scale
+    return day | {"rig": rig}
 
 
 def _plan(seed: int, session: dict, label: str, trial: int) -> dict:
@@ -171,7 +186,20 @@ def _drive(plan: dict) -> tuple[np.ndarray, np.ndarray]:
     x0, v0 = motor_profile(t, T_OUT - 0.95, s["duration_s"], accel)
     amp = plan["preload"] * stroke
     progress, rate = _progress(plan, t)
-    return amp * (1 - x0) + stroke * progress, -amp * v0 + stroke * rate
+    x, v = amp * (1 - x0) + stroke * progress, -amp * v0 + stroke * rate
+    play = s["rig"].play_mm if "rig" in s else 0.0
+    return (x, v) if play == 0.0 else _with_play(x, play)
+
+
+def _with_play(x: np.ndarray, play: float) -> tuple[np.ndarray, np.ndarray]:
+    """The finger's position and velocity behind a dead band of width ``play`` (mm): it
+    moves only where the motor's position ``x`` pushes it from one side of the band."""
+    y = np.empty_like(x)
+    y[0] = x[0]
+    half = 0.5 * play
+    for i in range(1, x.size):
+        y[i] = min(max(y[i - 1], x[i] - half), x[i] + half)
+    return y, np.gradient(y) * RATE_HZ
 
 
 def _progress(plan: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -230,6 +258,20 @@ def _forces(x: np.ndarray, params: list[dict[str, np.ndarray]], pad_to: int) -> 
     return np.concatenate(pieces, axis=1)
 
 
+def _rig_forces(x: np.ndarray, params: list[dict[str, np.ndarray]], pad_to: int,
+                rig: SimulatedRig) -> np.ndarray:
+    """:func:`_forces` through the rig's finger: its stiffness in series with the contact's
+    and its creep under the force (one correction pass), as :mod:`~.rigs` describes."""
+    if rig.finger_k is not None:
+        params = [p | {"k": p["k"] * rig.finger_k / (p["k"] + rig.finger_k)} for p in params]
+    force = _forces(x, params, pad_to)
+    if rig.creep_mm_per_n == 0.0:
+        return force
+    a = np.exp(-1.0 / (RATE_HZ * rig.creep_tau_s))  # Kelvin-Voigt creep, exact per step
+    creep = lfilter([rig.creep_mm_per_n * (1.0 - a)], [1.0, -a], force, axis=1)
+    return _forces(x - creep, params, pad_to)
+
+
 def _channel_gains(s: dict) -> np.ndarray:
     g_tx, g_ty, g_ix, g_iy = s["gains"]
     return np.array([g_tx, g_ty + s["crosstalk"] * g_tx, g_ix, g_iy])
@@ -261,6 +303,13 @@ def _sensor(plan: dict, clean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     hum = s["hum_n"] * rng.uniform(0.3, 1.0, 4) * np.sin(
         2 * np.pi * 50.0 * t[:, None] + rng.uniform(0, 2 * np.pi, 4))
     level = clean + offsets + plan["drift_slope"] * t[:, None] + walk
+    lowpass = s["rig"].lowpass_hz if "rig" in s else None
+    if lowpass is not None:  # the DAQ's filter, causal, on what the sensor gives it
+        from scipy.signal import butter
+
+        b, a = butter(2, lowpass / (RATE_HZ / 2))
+        noise, hum = lfilter(b, a, noise + hum, axis=0), 0.0
+        level = lfilter(b, a, level - level[0], axis=0) + level[0]
     step = round(s["quantum_n"] * 1000)  # mN per ADC count
     # exact multiples of 1 mN, so the 3-decimal CSV reads back to the same floats
     return np.round((level + noise + hum) * 1000 / step) * step / 1000, level
@@ -306,8 +355,9 @@ def _truth(plan: dict, level: np.ndarray, seed: int) -> dict:
     faults = [{"motion": f["motion"], "kind": f["kind"], "channels": f["channels"],
                "t_start": f["start"] / RATE_HZ, "t_stop": (f["start"] + f["n"]) / RATE_HZ}
               for f in plan["faults"]]
-    session = {k: v for k, v in s.items() if k != "session"}
-    return {"generator": "frictionfit.simulation.measurements", "seed": seed,
+    session = {k: v for k, v in s.items() if k not in ("session", "rig")}
+    rig = {"rig": asdict(s["rig"])} if "rig" in s else {}
+    return rig | {"generator": "frictionfit.simulation.measurements", "seed": seed,
             "law": "rich + viscous drag", "session": session, "preload": plan["preload"],
             "motions": motions, "faults": faults}
 
@@ -354,8 +404,8 @@ def _motor_positions(plan: dict, seed: int, rate_hz: float) -> dict:
 
 
 def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, *,
-                          pad_to: int = 35, position_rate_hz: float = 0.0
-                          ) -> list[Recording]:
+                          pad_to: int = 35, position_rate_hz: float = 0.0,
+                          rig: SimulatedRig = DEFAULT) -> list[Recording]:
     """Simulate measurements given as ``(session, label, trial)``; forces in one batch.
 
     Parameters
@@ -370,6 +420,8 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
     position_rate_hz : float
         Also read the motor's position this often (Hz; 0: not at all, as in the lab's
         recordings), as ``frictionfit rub`` does; the reads do not change the forces.
+    rig : SimulatedRig
+        The rig (:data:`~frictionfit.simulation.rigs.RIGS`); default: no rig effect.
 
     Returns
     -------
@@ -387,13 +439,13 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
     plans = []
     for session, label, trial in specs:
         if session not in sessions:
-            sessions[session] = _session(seed, session)
+            sessions[session] = _session(seed, session, rig)
         plans.append(_plan(seed, sessions[session], label, trial))
     x, v = (np.stack(a) for a in zip(*(_drive(p) for p in plans), strict=True))
     params = [{n: np.array([p["motions"][i]["params"][n] for p in plans]) for n in (*_LAW, "drag")}
               for i in range(N_MOTIONS)]
     drag = np.stack([p["drag"] for p in params])[_MOTION_OF].T  # (B, n): each piece's
-    force = (_forces(x, params, pad_to) + drag * v)[:, _N_HISTORY:]
+    force = (_rig_forces(x, params, pad_to, rig) + drag * v)[:, _N_HISTORY:]
     x = x[:, _N_HISTORY:]
     recs = []
     for k, plan in enumerate(plans):
@@ -408,8 +460,15 @@ def simulate_measurements(specs: Sequence[tuple[int, str, int]], seed: int = 0, 
         metadata = {"label": plan["label"], "material": material.slug, "layers": material.layers,
                     "session": plan["session"]["session"], "trial": plan["trial"],
                     "rig": "frictionfit-simulator", "synthetic": True}
+        if rig.decimation > 1:  # the DAQ's rate: every n-th sample of the simulator's
+            kept = np.round(t * RATE_HZ).astype(int) % rig.decimation == 0
+            t, y = t[kept], y[kept]
+        if rig != DEFAULT:
+            metadata["rig"] = rig.name
+            if rig.stroke_mm is not None:
+                metadata["stroke_mm"] = rig.stroke_mm
         recs.append(Recording(
-            t, y, RATE_HZ, tuple(Channel(c, "N") for c in CHANNELS),
+            t, y, rig.rate_hz, tuple(Channel(c, "N") for c in CHANNELS),
             events=events, metadata=metadata, truth=_truth(plan, level, seed),
             extra={MOTOR_POSITIONS: _motor_positions(plan, seed, position_rate_hz)} if read else {},
             name=f"s{plan['session']['session']}_{plan['label']}_{plan['trial']:02d}"))
@@ -426,6 +485,7 @@ def simulate_dataset(
     batch: int = 35,
     position_rate_hz: float = 0.0,
     progress: Callable[[int], None] | None = None,
+    rig: SimulatedRig = DEFAULT,
 ) -> list[Path]:
     """Write ``sessions x classes x measurements_per_class`` measurements to ``out``.
 
@@ -447,6 +507,8 @@ def simulate_dataset(
         The motor's position reads per second (0: none); see :func:`simulate_measurements`.
     progress : callable, optional
         Called with the number of measurements written after each batch.
+    rig : SimulatedRig
+        The rig the measurements are made on (default: no rig effect).
 
     Returns
     -------
@@ -465,7 +527,7 @@ def simulate_dataset(
     for start in range(0, len(specs), batch):
         chunk = specs[start:start + batch]
         for rec in simulate_measurements(chunk, seed, pad_to=batch,
-                                         position_rate_hz=position_rate_hz):
+                                         position_rate_hz=position_rate_hz, rig=rig):
             paths.append(write_recording(rec, Path(out) / rec.name, decimals=3))
         if progress is not None:
             progress(len(chunk))
