@@ -31,7 +31,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
 from frictionfit.errors import RecordingError
-from frictionfit.recording import Channel, Recording, kept_per_recording
+from frictionfit.recording import GRID_LIMIT, Channel, Recording, kept_per_recording
 
 __all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
            "robust_sd", "segment", "suspect_samples"]
@@ -125,7 +125,17 @@ def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
 
 
 def regrid(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """Samples on the uniform grid ``t[0] + k / sample_rate_hz``; NaN rows for dropped samples."""
+    """Samples on the uniform grid ``t[0] + k / sample_rate_hz``; NaN rows for dropped samples.
+
+    RecordingError when the time stamps claim a grid over :data:`~frictionfit.recording.GRID_LIMIT`
+    times the rows (more missing samples than the file holds): memory is bounded by what the
+    file holds, never by what its time stamps claim."""
+    if rec.n_samples and (rec.t[-1] - rec.t[0]) * rec.sample_rate_hz + 1 > \
+            GRID_LIMIT * rec.n_samples:
+        raise RecordingError(f"its time stamps span {rec.t[-1] - rec.t[0]:.6g} s for "
+                             f"{rec.n_samples} rows at {rec.sample_rate_hz:g} Hz: more missing "
+                             "samples than the recording holds (a corrupted time stamp?)",
+                             path=rec.name)
     k = rec.grid_slots
     n = int(k[-1]) + 1 if k.size else 0
     grid = np.full((n, rec.samples.shape[1]), np.nan)

@@ -35,6 +35,25 @@ _COMMANDS = (  # name, function, the one line in `frictionfit --help`
     ("rub", acquire.rub, "Run the rubbing protocol on a gripper while recording."),
     ("bench", bench.bench, "Benchmark speed against error on simulated data."),
 )
+
+
+@app.callback()
+def _plain_warnings() -> None:
+    """Warnings reach the user as one ``warning: ...`` line each on stderr, said once: not
+    Python's raw ``file:line: Category: ...`` lines."""
+    import warnings
+
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = " ".join(str(message).split())
+        if text not in seen:
+            seen.add(text)
+            typer.echo(f"warning: {text}", err=True)
+
+    warnings.showwarning = show
+
+
 for _name, _func, _line in _COMMANDS:
     app.command(_name, short_help=_line)(_func)
 app.add_typer(simulate.app, name="simulate",
