@@ -40,18 +40,20 @@ _COMMANDS = (  # name, function, the one line in `frictionfit --help`
 @app.callback()
 def _plain_warnings() -> None:
     """Warnings reach the user as one ``warning: ...`` line each on stderr, said once: not
-    Python's raw ``file:line: Category: ...`` lines."""
+    Python's raw ``file:line: Category: ...`` lines (only their formatting changes: code that
+    records warnings still receives them)."""
     import warnings
 
     seen: set[str] = set()
 
-    def show(message, category, filename, lineno, file=None, line=None) -> None:
+    def plain(message, category, filename, lineno, line=None) -> str:
         text = " ".join(str(message).split())
-        if text not in seen:
-            seen.add(text)
-            typer.echo(f"warning: {text}", err=True)
+        if text in seen:
+            return ""
+        seen.add(text)
+        return f"warning: {text}\n"
 
-    warnings.showwarning = show
+    warnings.formatwarning = plain
 
 
 for _name, _func, _line in _COMMANDS:

@@ -33,7 +33,7 @@ def plot(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from frictionfit.errors import FrictionfitError
+    from frictionfit.errors import FrictionfitError, RecordingError
     from frictionfit.recording import read_recording, recording_paths
     from frictionfit.segmentation import segment
 
@@ -45,6 +45,9 @@ def plot(
     check_output(out, "--out", FORMATS, overwrite=overwrite, reads=reads_of([path]))
     try:
         rec = read_recording(path, on_error="flag")
+        for p in rec.disqualified:  # time stamps no grid can hold: nothing to shade
+            if p.kind == "time_span":
+                raise RecordingError(str(p), path=recording_paths(path)[0])
         motions = segment(rec, drop_first=False, use_events=not no_events)
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
