@@ -61,7 +61,7 @@ def test_train_then_predict_round_trip(folders, tmp_path):
     below = int((table["probability"] < cut).sum())
     with pytest.warns(UserWarning, match="fewer than 10 recordings"):
         result = runner.invoke(app, ["predict", str(model), "--dataset", f"recordings:{test}",
-                                     "--out", str(out), "--abstain", str(cut)])
+                                     "--out", str(out), "--abstain", str(cut), "--overwrite"])
     assert result.exit_code == 0, result.output
     abstained = pd.read_csv(out)
     assert ((abstained["predicted"] == "abstain") == (table["probability"] < cut)).all()
