@@ -350,6 +350,16 @@ def test_a_fabricslide_file_or_folder_read_as_recordings_says_fabricslide(tmp_pa
     assert "no session(s)" in result.output and "sNone" not in result.output
 
 
+def test_info_on_the_shared_fabricslide_folder_says_what_it_is(shared):
+    folder = shared / "datasets" / "fabricslide"
+    n = len(list(folder.glob("*.csv")))
+    result = runner.invoke(app, ["info", str(folder)])
+    assert result.exit_code == 1
+    assert (f"its {n} .csv files are FabricSlide slides, not recordings with sidecars: read the "
+            f"folder as fabricslide:{folder}") in result.output
+    assert f"... and {n - 10} more skipped" in result.output  # not n lines
+
+
 def test_a_folder_none_of_whose_recordings_can_be_used_says_why(tmp_path):
     _edited(tmp_path, "giga1", _scaled(1e9))
     _edited(tmp_path, "stamp", _last_stamp(1e6))

@@ -18,6 +18,10 @@ WHOLE_LAWS_HELP = ("auto (by BIC: no static peak, a static peak, or a static pea
                    "damping), no_peak2, relaxation, relaxation2 or rich.")
 
 
+#: Skipped files named when none of a dataset's could be used (the error counts the reasons).
+SHOWN_WHEN_NONE = 10
+
+
 def fail(message: str, code: int = 1):
     """Print ``error: message`` on stderr and leave with ``code``."""
     typer.echo(f"error: {message}", err=True)
@@ -40,11 +44,15 @@ def load_recordings(spec: str, strict: bool = False) -> list:
             failure = str(exc)
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in caught:
-        if w in skipped:
-            typer.echo(str(w.message), err=True)
-        else:
+        if w not in skipped:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    # every file skipped is named; when none could be used, the first few and the reasons
+    shown = skipped if failure is None else skipped[:SHOWN_WHEN_NONE]
+    for w in shown:
+        typer.echo(str(w.message), err=True)
     if failure is not None:
+        if len(skipped) > len(shown):
+            typer.echo(f"... and {len(skipped) - len(shown)} more skipped", err=True)
         fail(failure)
     if not recordings:
         fail(f"dataset {spec!r} holds no recordings")
