@@ -46,11 +46,13 @@ def lab(tmp_path) -> Path:
 
 def _edited(folder: Path, name: str, edit_csv=None, edit_side=None) -> Path:
     """A copy of sample ``SAMPLES[0]`` as ``name`` in ``folder``, its table and sidecar
-    passed through ``edit_csv`` (a DataFrame, changed in place) and ``edit_side`` (a dict)."""
+    passed through ``edit_csv`` (a DataFrame, changed in place or returned) and ``edit_side``
+    (a dict, changed in place)."""
     frame = pd.read_csv(DATA / f"{SAMPLES[0]}.csv")
     side = json.loads((DATA / f"{SAMPLES[0]}.json").read_text())
     if edit_csv is not None:
-        edit_csv(frame)
+        edited = edit_csv(frame)  # in place, or a new frame
+        frame = frame if edited is None else edited
     if edit_side is not None:
         edit_side(side)
     frame.to_csv(folder / f"{name}.csv", index=False, float_format="%.12g")
@@ -444,3 +446,19 @@ def test_the_readme_states_the_rules_the_code_applies():
     assert "force_range" in recording.DISQUALIFYING
     assert "status `at_bound`, never `converged`" in text
     assert "replaced only with `--overwrite`" in text
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda frame: frame.iloc[:0], "only 0 sample"),
+    (_last_stamp(np.nan), "column 't' has NaN/inf"),
+    (lambda frame: frame.loc.__setitem__((500, "t"), 0.1), "time is not strictly increasing"),
+])
+def test_plot_of_time_stamps_no_grid_can_hold_fails_in_words(tmp_path, edit, words):
+    bad = _edited(tmp_path, "bad", edit)
+    result = runner.invoke(app, ["plot", str(bad), "--out", str(tmp_path / "p.png")])
+    assert result.exit_code == 2 and f"{bad}: " in result.output and words in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    from frictionfit.segmentation import regrid
+
+    with pytest.raises(RecordingError, match="no uniform grid"):
+        regrid(read_recording(bad, on_error="flag"))

@@ -46,7 +46,7 @@ def plot(
     try:
         rec = read_recording(path, on_error="flag")
         for p in rec.disqualified:  # time stamps no grid can hold: nothing to shade
-            if p.kind == "time_span":
+            if p.kind in ("too_short", "nonfinite_time", "nonmonotonic_time", "time_span"):
                 raise RecordingError(str(p), path=recording_paths(path)[0])
         motions = segment(rec, drop_first=False, use_events=not no_events)
     except FrictionfitError as exc:
