@@ -462,3 +462,11 @@ def test_plot_of_time_stamps_no_grid_can_hold_fails_in_words(tmp_path, edit, wor
 
     with pytest.raises(RecordingError, match="no uniform grid"):
         regrid(read_recording(bad, on_error="flag"))
+
+
+def test_the_demo_never_writes_its_table_into_the_recordings_it_reads(lab):
+    (lab / "fits.csv").write_text("a,b\n")
+    before = _sums(lab)
+    result = runner.invoke(app, ["demo", "--data", str(lab), "--out", str(lab)])
+    assert result.exit_code == 2 and "fits.csv is a file this command reads" in result.output
+    assert _sums(lab) == before

@@ -93,11 +93,9 @@ def fit(
     recordings at different sample rates run on their own time grids."""
     fixed = _fixes(fix)
     priors = _priors(prior)
-    reads = reads_of(paths) + ([Path(rig)] if rig.endswith(".json") else [])
-    check_output(out, "--out", (".csv", ".parquet"), overwrite=overwrite, reads=reads)
-    check_output(chains, "--chains", (".h5", ".hdf5"), overwrite=overwrite, reads=reads)
-    if save_rig is not None:
-        check_output(save_rig, "--save-rig", (".json",), overwrite=overwrite, reads=reads)
+    _check_outputs(paths, rig, overwrite, ((out, "--out", (".csv", ".parquet")),
+                                           (chains, "--chains", (".h5", ".hdf5")),
+                                           (save_rig, "--save-rig", (".json",))))
     if plot is not None:
         make_folder(plot, "--plot")
     files = _files(paths)
@@ -148,6 +146,15 @@ class _Output:
         if self.plots is not None:
             for name in ids:
                 check_output(_plot_path(self.plots, name), "--plot", overwrite=self.overwrite)
+
+
+def _check_outputs(paths: list[Path], rig: str, overwrite: bool, outputs: tuple) -> None:
+    """Each ``(path, option, suffixes)`` of ``outputs`` checked before any work
+    (:func:`~frictionfit.cli._load.check_output`) against what the command reads: the
+    recordings of ``paths`` and a ``--rig`` file."""
+    reads = reads_of(paths) + ([Path(rig)] if rig.endswith(".json") else [])
+    for path, option, suffixes in outputs:
+        check_output(path, option, suffixes, overwrite=overwrite, reads=reads)
 
 
 def _plot_path(folder: Path, name: str) -> Path:
