@@ -470,3 +470,13 @@ def test_the_demo_never_writes_its_table_into_the_recordings_it_reads(lab):
     result = runner.invoke(app, ["demo", "--data", str(lab), "--out", str(lab)])
     assert result.exit_code == 2 and "fits.csv is a file this command reads" in result.output
     assert _sums(lab) == before
+
+
+def test_a_link_to_a_recording_is_a_recording(lab, tmp_path):
+    link = tmp_path / "fits.csv"
+    link.symlink_to(lab / f"{SAMPLES[0]}.csv")
+    before = _sums(lab)
+    result = runner.invoke(app, ["fit", str(lab / f"{SAMPLES[1]}.csv"), "--out", str(link),
+                                 "--overwrite"])
+    assert result.exit_code == 2 and "is a recording" in result.output
+    assert _sums(lab) == before

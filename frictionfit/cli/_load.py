@@ -113,7 +113,10 @@ def is_recording(path: Path) -> bool:
     ``channels``), or a FabricSlide slide."""
     from frictionfit.recording import looks_like_fabricslide, recording_paths
 
-    if path.suffix not in (".csv", ".json") or not path.exists():
+    if not path.exists():
+        return False
+    path = path.resolve()  # a link to a recording's file is that file
+    if path.suffix not in (".csv", ".json"):
         return False
     csv, side = recording_paths(path)
     if csv.is_file() and side.is_file():
