@@ -234,7 +234,8 @@ def test_a_folder_skips_the_corrupted_file_and_writes_the_others(lab, tmp_path):
 
 def test_reading_a_corrupted_file_costs_no_more_than_a_good_one(tmp_path):
     good = _edited(tmp_path, "good")
-    bad = _edited(tmp_path, "stamp", _last_stamp(1e6))
+    # 100 s for 10,006 rows at 1 kHz: a grid of ten times the rows, were it built
+    bad = _edited(tmp_path, "stamp", _last_stamp(100.0))
     from frictionfit.errors import FrictionfitError
     from frictionfit.segmentation import segment
 
