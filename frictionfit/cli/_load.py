@@ -1,4 +1,6 @@
-"""Reading recordings for a command: skipped files named on stderr, counts said."""
+"""What a command reads and writes: recordings read with the files skipped named on stderr and
+counts said; outputs checked before any work (never a recording, nor a file the command reads;
+an existing one replaced only with ``--overwrite``); a line per stage of a long command."""
 
 from __future__ import annotations
 
