@@ -481,3 +481,20 @@ def test_a_link_to_a_recording_is_a_recording(lab, tmp_path):
                                  "--overwrite"])
     assert result.exit_code == 2 and "is a recording" in result.output
     assert _sums(lab) == before
+
+
+def test_fit_says_each_stage_off_a_terminal(tmp_path):
+    from frictionfit.recording import Event, Recording
+    from frictionfit.simulation.trials import simulate_trials
+
+    ts = simulate_trials("elastic_plastic", 2, seed=4, snr_db=30)
+    events = [Event(ts.t_out + 2 * k + dt, "move", tgt)
+              for k in range(2) for dt, tgt in ((0.0, "p2"), (1.0, "p1"))]
+    write_recording(Recording.from_arrays(ts.y.reshape(-1, 1), 1000.0, ["index_x"],
+                                          events=events), tmp_path / "m1")
+    result = runner.invoke(app, ["fit", str(tmp_path / "m1.csv"), "--motions", "--model",
+                                 "elastic_plastic", "--uncertainty", "laplace", "--out",
+                                 str(tmp_path.parent / f"{tmp_path.name}.csv")])
+    assert result.exit_code == 0, result.output
+    for words in ("fitting 1 trial", "posteriors (laplace) of 1 trial"):
+        assert f"{words} ...\n" in result.output and f"{words}: done in " in result.output
