@@ -75,6 +75,7 @@ class Status(enum.IntEnum):
     NONFINITE = 2
     ILL_CONDITIONED = 3
     INSUFFICIENT_DATA = 4
+    AT_BOUND = 5
     SATURATED = 6
 
     @property
@@ -98,6 +99,11 @@ _STATUS_MESSAGES = {
     ),
     Status.INSUFFICIENT_DATA: (
         "Too few finite samples to fit this model; the trial is mostly missing or NaN."
+    ),
+    Status.AT_BOUND: (
+        "The stiffness or the kinetic friction ended at a bound of its range: the forces are "
+        "not what the law can describe at a plausible scale. Check the channel's unit (forces "
+        "in N) and the stroke (--stroke-mm); the values are not measurements."
     ),
     Status.SATURATED: (
         "The channel is saturated (clipped) or stuck: a run of samples sits exactly at its "

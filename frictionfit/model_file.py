@@ -65,6 +65,10 @@ def load_model(path: PathType) -> dict[str, Any]:
     if path.stat().st_size == 0:
         raise ModelError("the model file is empty", path=path)
     if not zipfile.is_zipfile(path):
+        with open(path, "rb") as f:
+            if f.read(4) == b"PK\x03\x04":  # a zip's start without its end: cut short
+                raise ModelError("damaged: the model file is cut short (truncated while it was "
+                                 "written or copied?); copy it again or retrain", path=path)
         hint = (" (a pickle/joblib file from an older frictionfit: retrain it, since loading "
                 "a pickle can run any code)" if path.suffix in (".joblib", ".pkl") else "")
         raise ModelError(f"not a model written by `frictionfit train`{hint}", path=path)

@@ -53,6 +53,15 @@ NEWTONS_PER = {"N": 1.0, "mN": 1e-3, "kN": 1e3}
 REQUIRED_SIDECAR_FIELDS = ("sample_rate_hz", "channels")
 #: Relative deviation of the median sample interval from 1/sample_rate_hz that is flagged.
 RATE_TOLERANCE = 0.02
+#: Relative deviation of the data's rate (mean interval between neighbours) from
+#: ``sample_rate_hz`` that is named as informational (``"rate_off"``).
+RATE_NOTE = 0.005
+#: A recording's uniform grid (one slot per 1/sample_rate_hz) may be at most this many
+#: times its rows: time stamps claiming more missing samples than the file holds are
+#: disqualifying (``"time_span"``), and nothing allocates by them.
+GRID_LIMIT = 2
+#: Largest force (N) a tactile sensor measures; beyond it the unit is wrong.
+FORCE_LIMIT_N = 1e4
 #: A channel whose finite samples span less than this (in its unit) is called dead.
 DEAD_CHANNEL_SPAN = 1e-12
 #: Sidecar key of the actuator's measured positions: ``columns`` (name, unit) of each row
@@ -401,100 +410,134 @@ def validate(rec: Recording) -> list[Problem]:
     """Check a recording; return the problems found (empty when it is clean).
 
     Checks: time strictly increasing, runs of NaN/inf, dead (constant) channels,
-    the median sample interval against ``sample_rate_hz``, events inside the time
-    range, and unknown units. Dropped samples (gaps in ``t``) are reported as kind
-    ``"gap"``, commands after the last sample (earlier ones inside) as ``"ends_early"``,
-    samples the acquisition saw flagged overloaded as ``"overload"``; see
-    :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
+    the sample intervals against ``sample_rate_hz``, time stamps that claim more missing
+    samples than the file holds, forces beyond what a tactile sensor measures
+    (:data:`FORCE_LIMIT_N`), events inside the time range, and unknown units. Dropped
+    samples (gaps in ``t``) are reported as kind ``"gap"``, commands after the last sample
+    (earlier ones inside) as ``"ends_early"``, samples the acquisition saw flagged
+    overloaded as ``"overload"``, a declared rate a little off the data's as ``"rate_off"``;
+    see :data:`INFORMATIONAL` and :data:`DISQUALIFYING`.
     """
-    problems: list[Problem] = []
     if rec.n_samples < 2:
         return [Problem("too_short", f"only {rec.n_samples} sample(s)")]
-    dt = np.diff(rec.t)
-    if not np.all(np.isfinite(rec.t)):
-        problems.append(Problem("nonfinite_time", "column 't' has NaN/inf values"))
-    elif np.any(dt <= 0):
-        i = int(np.argmax(dt <= 0))
-        problems.append(
-            Problem(
-                "nonmonotonic_time",
-                f"time is not strictly increasing at row {i + 1} "
-                f"(t={rec.t[i]:.6g} s then {rec.t[i + 1]:.6g} s)",
-            )
-        )
-    else:
-        nominal = 1.0 / rec.sample_rate_hz
-        median = float(np.median(dt))
-        if abs(median - nominal) > RATE_TOLERANCE * nominal:
-            problems.append(
-                Problem(
-                    "sample_rate",
-                    f"median sample interval {median * 1e3:.4g} ms does not match "
-                    f"sample_rate_hz={rec.sample_rate_hz:g} ({nominal * 1e3:.4g} ms)"
-                    + (" (is t in milliseconds? it must be seconds)"
-                       if abs(median / nominal - 1e3) < RATE_TOLERANCE * 1e3 else ""),
-                )
-            )
-        gaps = np.flatnonzero(dt > 1.5 * nominal)
-        if gaps.size:
-            lost = int(np.sum(np.round(dt[gaps] / nominal) - 1))
-            problems.append(
-                Problem(
-                    "gap",
-                    f"{gaps.size} gap(s) in t, about {lost} dropped sample(s); "
-                    f"first at t={rec.t[gaps[0]]:.6g} s",
-                )
-            )
-        # the uniform grid every analysis uses keeps one sample per slot
-        shared = rec.n_samples - np.unique(rec.grid_slots).size
-        if shared:
-            problems.append(Problem(
-                "jitter", f"{shared} sample(s) share a slot of the {rec.sample_rate_hz:g}-Hz "
-                "grid with a neighbour (their time stamps jitter by half a sample interval or "
-                "more): one sample of each slot is used"))
-    outside = [e for e in rec.events
-               if np.all(np.isfinite(rec.t)) and not rec.t[0] <= e.t <= rec.t[-1]]
-    if outside:
-        e = outside[0]
-        if e.t > rec.t[-1] and len(outside) < len(rec.events):
-            # commands after the last sample, the earlier ones inside: the recording stopped
-            # before its protocol did (an interrupted acquisition); what it holds is used
-            problems.append(Problem(
-                "ends_early", f"{len(outside)} event(s) after the last sample at "
-                f"t={rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s: the "
-                "recording stops before its protocol did (an interrupted acquisition?); what "
-                "it holds is used"))
-        else:
-            problems.append(Problem(
-                "events_outside", f"{len(outside)} event(s) outside the recording's time range "
-                f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at "
-                f"t={e.t:.6g} s (event times must be seconds from the start of the recording)"))
+    problems = _time_problems(rec)
+    problems += _event_problems(rec)
     problems += _overloads(rec)
     for j, ch in enumerate(rec.channels):
-        x = rec.samples[:, j]
-        bad = ~np.isfinite(x)
-        if bad.any():
-            first = int(np.argmax(bad))
-            problems.append(
-                Problem(
-                    "nonfinite",
-                    f"{int(bad.sum())} NaN/inf sample(s), first at t={rec.t[first]:.6g} s",
-                    ch.name,
-                )
-            )
-        finite = x[~bad]
-        if finite.size and float(np.ptp(finite)) <= DEAD_CHANNEL_SPAN:
-            problems.append(
-                Problem("dead_channel", f"constant at {finite[0]:.6g} {ch.unit} (dead?)", ch.name)
-            )
-        if ch.unit not in KNOWN_UNITS:
-            problems.append(
-                Problem(
-                    "unit",
-                    f"unknown unit {ch.unit!r}; expected one of {sorted(KNOWN_UNITS)}",
-                    ch.name,
-                )
-            )
+        problems += _channel_problems(rec.t, rec.samples[:, j], ch)
+    return problems
+
+
+def _time_problems(rec: Recording) -> list[Problem]:
+    """What is wrong with ``t``: not finite, not increasing, at another rate than the
+    sidecar's, gaps (plausible ones informational, ones claiming more missing samples than
+    the file holds disqualifying) and samples sharing a slot of the grid."""
+    dt = np.diff(rec.t)
+    if not np.all(np.isfinite(rec.t)):
+        return [Problem("nonfinite_time", "column 't' has NaN/inf values")]
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        return [Problem("nonmonotonic_time", f"time is not strictly increasing at row {i + 1} "
+                        f"(t={rec.t[i]:.6g} s then {rec.t[i + 1]:.6g} s)")]
+    problems = _rate_problems(rec, dt)
+    if any(p.kind == "sample_rate" for p in problems):  # no grid to check the stamps against
+        return problems
+    nominal = 1.0 / rec.sample_rate_hz
+    gaps = np.flatnonzero(dt > 1.5 * nominal)
+    slots = (rec.t[-1] - rec.t[0]) * rec.sample_rate_hz + 1  # float: never overflows
+    if slots > GRID_LIMIT * rec.n_samples:
+        big = int(np.argmax(dt))
+        problems.append(Problem(
+            "time_span", f"its time stamps span {rec.t[-1] - rec.t[0]:.6g} s ({slots:.4g} "
+            f"samples at {rec.sample_rate_hz:g} Hz) but the file holds {rec.n_samples} rows: "
+            f"the gap after t={rec.t[big]:.6g} s (to {rec.t[big + 1]:.6g} s) claims more "
+            "missing samples than the recording holds (a corrupted time stamp?)"))
+        return problems
+    if gaps.size:
+        lost = int(np.sum(np.round(dt[gaps] / nominal) - 1))
+        problems.append(Problem("gap", f"{gaps.size} gap(s) in t, about {lost} dropped "
+                                f"sample(s); first at t={rec.t[gaps[0]]:.6g} s"))
+    # the uniform grid every analysis uses keeps one sample per slot
+    shared = rec.n_samples - np.unique(rec.grid_slots).size
+    if shared:
+        problems.append(Problem(
+            "jitter", f"{shared} sample(s) share a slot of the {rec.sample_rate_hz:g}-Hz "
+            "grid with a neighbour (their time stamps jitter by half a sample interval or "
+            "more): one sample of each slot is used"))
+    return problems
+
+
+def _rate_problems(rec: Recording, dt: np.ndarray) -> list[Problem]:
+    """The declared rate against the data's: the median interval more than
+    :data:`RATE_TOLERANCE` off is disqualifying (``"sample_rate"``); the mean interval
+    between neighbours (gaps left out) more than :data:`RATE_NOTE` off is named
+    (``"rate_off"``)."""
+    nominal = 1.0 / rec.sample_rate_hz
+    median = float(np.median(dt))
+    if abs(median - nominal) > RATE_TOLERANCE * nominal:
+        return [Problem(
+            "sample_rate",
+            f"median sample interval {median * 1e3:.4g} ms does not match "
+            f"sample_rate_hz={rec.sample_rate_hz:g} ({nominal * 1e3:.4g} ms)"
+            + (" (is t in milliseconds? it must be seconds)"
+               if abs(median / nominal - 1e3) < RATE_TOLERANCE * 1e3 else ""))]
+    steady = dt[dt < 1.5 * nominal]
+    rate = 1.0 / float(np.mean(steady)) if steady.size else rec.sample_rate_hz
+    off = rec.sample_rate_hz / rate - 1.0
+    if abs(off) > RATE_NOTE:
+        return [Problem(
+            "rate_off", f"the time stamps are {rate:.6g} Hz, {abs(off) * 100:.2g} % "
+            f"{'under' if off > 0 else 'over'} the sidecar's sample_rate_hz="
+            f"{rec.sample_rate_hz:g}: samples are placed on the sidecar's grid by their time "
+            "stamps, leaving a slot empty (or shared) every "
+            f"{1 / abs(off):.0f} samples; fix sample_rate_hz if it is wrong")]
+    return []
+
+
+def _event_problems(rec: Recording) -> list[Problem]:
+    """Events outside the recording: disqualifying (``"events_outside"``) unless only
+    commands after the last sample, the earlier ones inside (``"ends_early"``)."""
+    outside = [e for e in rec.events
+               if np.all(np.isfinite(rec.t)) and not rec.t[0] <= e.t <= rec.t[-1]]
+    if not outside:
+        return []
+    e = outside[0]
+    if e.t > rec.t[-1] and len(outside) < len(rec.events):
+        # commands after the last sample, the earlier ones inside: the recording stopped
+        # before its protocol did (an interrupted acquisition); what it holds is used
+        return [Problem(
+            "ends_early", f"{len(outside)} event(s) after the last sample at "
+            f"t={rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at t={e.t:.6g} s: the "
+            "recording stops before its protocol did (an interrupted acquisition?); what "
+            "it holds is used")]
+    return [Problem(
+        "events_outside", f"{len(outside)} event(s) outside the recording's time range "
+        f"{rec.t[0]:.6g}-{rec.t[-1]:.6g} s, first {e.kind} {e.target or ''} at "
+        f"t={e.t:.6g} s (event times must be seconds from the start of the recording)")]
+
+
+def _channel_problems(t: np.ndarray, x: np.ndarray, ch: Channel) -> list[Problem]:
+    """One channel's problems: NaN/inf runs, constant (dead), an unknown unit, and forces
+    (N) beyond :data:`FORCE_LIMIT_N`."""
+    problems = []
+    bad = ~np.isfinite(x)
+    if bad.any():
+        first = int(np.argmax(bad))
+        problems.append(Problem("nonfinite", f"{int(bad.sum())} NaN/inf sample(s), first at "
+                                f"t={t[first]:.6g} s", ch.name))
+    finite = x[~bad]
+    if finite.size and float(np.ptp(finite)) <= DEAD_CHANNEL_SPAN:
+        problems.append(Problem("dead_channel", f"constant at {finite[0]:.6g} {ch.unit} (dead?)",
+                                ch.name))
+    if ch.unit == "N" and finite.size and float(np.max(np.abs(finite))) > FORCE_LIMIT_N:
+        i = int(np.argmax(np.abs(np.where(bad, 0.0, x))))
+        problems.append(Problem(
+            "force_range", f"{x[i]:.4g} N at t={t[i]:.6g} s: beyond what a tactile sensor "
+            f"measures (|F| <= {FORCE_LIMIT_N:g} N); is the unit wrong (mN, or counts, written "
+            "as N)?", ch.name))
+    if ch.unit not in KNOWN_UNITS:
+        problems.append(Problem("unit", f"unknown unit {ch.unit!r}; expected one of "
+                                f"{sorted(KNOWN_UNITS)}", ch.name))
     return problems
 
 
@@ -523,11 +566,12 @@ def _overloads(rec: Recording) -> list[Problem]:
 #: samples); segmentation and fitting mask them. A recording that ends before its last
 #: commands (an interrupted acquisition keeps every row it flushed and every command it
 #: sent) is used as far as it goes.
-INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early", "jitter", "overload"})
+INFORMATIONAL = frozenset({"gap", "nonfinite", "ends_early", "jitter", "overload",
+                           "rate_off"})
 #: Problems that make every number taken from the recording wrong: commands skip such a
 #: recording, naming it and the problem, unless asked to stop (``--strict``).
 DISQUALIFYING = frozenset({"too_short", "nonfinite_time", "nonmonotonic_time", "sample_rate",
-                           "events_outside", "truncated"})
+                           "events_outside", "truncated", "time_span", "force_range"})
 
 
 def _check(rec: Recording, path: PathType, on_error: OnError) -> Recording:
@@ -551,8 +595,23 @@ def recording_paths(path: PathType) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".json")
 
 
+def looks_like_fabricslide(csv_path: Path) -> bool:
+    """Whether ``csv_path``'s header is a FabricSlide slide's (``timestamp, proximity1,
+    ...``): a file of another dataset kind, read as ``fabricslide:PATH``."""
+    try:
+        with open(csv_path, errors="replace") as f:
+            head = f.readline(4096)
+    except OSError:
+        return False
+    return [c.strip() for c in head.split(",")[:2]] == ["timestamp", "proximity1"]
+
+
 def _read_sidecar(json_path: Path) -> dict[str, Any]:
     if not json_path.exists():
+        csv_path = json_path.with_suffix(".csv")
+        if looks_like_fabricslide(csv_path):
+            raise RecordingError(f"a FabricSlide slide, not a recording with a sidecar: read "
+                                 f"it as fabricslide:{csv_path}", path=csv_path)
         raise RecordingError("sidecar file is missing (every <name>.csv needs <name>.json)",
                              path=json_path)
     try:
@@ -658,10 +717,7 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
             path=csv_path,
         )
     known = {"sample_rate_hz", "channels", "events", "metadata", "truth", "problems"}
-    try:
-        events = tuple(Event.from_json(e) for e in side.get("events", []))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RecordingError(f"malformed event in sidecar: {exc!r}", path=json_path) from None
+    events = _events(side.get("events", []), json_path)
     values = frame.to_numpy(dtype=np.float64)
     rec = Recording(
         t=values[:, 0],
@@ -675,6 +731,25 @@ def read_recording(path: PathType, *, on_error: OnError = "raise") -> Recording:
         extra={k: v for k, v in side.items() if k not in known},
     )
     return _check(rec.in_newtons(), csv_path, on_error)
+
+
+def _events(items: list, json_path: Path) -> tuple[Event, ...]:
+    """The sidecar's ``events``; RecordingError naming the first malformed one (its index,
+    what it holds and what is wrong)."""
+    events = []
+    for i, e in enumerate(items):
+        try:
+            if not isinstance(e, dict):
+                raise TypeError("not an object")
+            missing = [k for k in ("t", "kind") if k not in e]
+            if missing:
+                raise KeyError(f"no {' or '.join(repr(k) for k in missing)}")
+            events.append(Event.from_json(e))
+        except (KeyError, TypeError, ValueError) as exc:
+            why = exc.args[0] if isinstance(exc, KeyError) else str(exc)
+            raise RecordingError(f"malformed event {i} in sidecar {json.dumps(e)[:80]}: {why} "
+                                 "(an event needs 't' in s and 'kind')", path=json_path) from None
+    return tuple(events)
 
 
 def write_recording(rec: Recording, path: PathType, *, decimals: int | None = None) -> Path:
@@ -723,6 +798,7 @@ def read_dataset(folder: PathType, *, on_error: OnError = "flag",
     if not paths:
         raise DatasetError(f"{folder}: no <name>.csv + <name>.json recordings found")
     recs: list[Recording] = []
+    why: list[str] = []
     for path in paths:
         try:
             rec = read_recording(path, on_error=on_error)
@@ -738,11 +814,24 @@ def read_dataset(folder: PathType, *, on_error: OnError = "flag",
             if strict:
                 raise DatasetError(str(exc)) from None
             warnings.warn(f"skipped {exc}", DatasetWarning, stacklevel=2)
+            why.append(exc.problem)
             continue
         recs.append(rec)
     if not recs:
-        raise DatasetError(f"{folder}: none of its {len(paths)} recordings could be used")
+        raise DatasetError(_none_usable(folder, paths, why))
     return recs
+
+
+def _none_usable(folder: Path, paths: list[Path], why: list[str]) -> str:
+    """Why no recording of ``folder`` could be used: its files another dataset kind's, or
+    the commonest reasons, counted."""
+    if all(looks_like_fabricslide(p) for p in paths):
+        return (f"{folder}: its {len(paths)} .csv files are FabricSlide slides, not recordings "
+                f"with sidecars: read the folder as fabricslide:{folder}")
+    counts = pd.Series(why, dtype=object).value_counts()
+    reasons = "; ".join(f"{n} x {reason}" for reason, n in counts.head(3).items())
+    more = f"; and {len(counts) - 3} other reason(s)" if len(counts) > 3 else ""
+    return f"{folder}: none of its {len(paths)} recordings could be used: {reasons}{more}"
 
 
 class DatasetWarning(UserWarning):

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
 from frictionfit.errors import RecordingError
-from frictionfit.recording import Channel, Recording, kept_per_recording
+from frictionfit.recording import GRID_LIMIT, Channel, Recording, kept_per_recording
 
 __all__ = ["Motion", "Movement", "Phase", "detect_movements", "moving_average", "regrid",
            "robust_sd", "segment", "suspect_samples"]
@@ -125,7 +125,21 @@ def moving_average(x: np.ndarray, n: int = 9) -> np.ndarray:
 
 
 def regrid(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """Samples on the uniform grid ``t[0] + k / sample_rate_hz``; NaN rows for dropped samples."""
+    """Samples on the uniform grid ``t[0] + k / sample_rate_hz``; NaN rows for dropped samples.
+
+    RecordingError for fewer than two samples, time stamps not finite and increasing, or a
+    grid over :data:`~frictionfit.recording.GRID_LIMIT` times the rows (more missing samples
+    than the file holds): memory is bounded by what the file holds, never by what its time
+    stamps claim."""
+    if rec.n_samples < 2 or not np.all(np.isfinite(rec.t)) or np.any(np.diff(rec.t) <= 0):
+        why = (f"only {rec.n_samples} sample(s)" if rec.n_samples < 2
+               else "its time stamps are not finite and increasing")
+        raise RecordingError(f"no uniform grid: {why}", path=rec.name)
+    if (rec.t[-1] - rec.t[0]) * rec.sample_rate_hz + 1 > GRID_LIMIT * rec.n_samples:
+        raise RecordingError(f"its time stamps span {rec.t[-1] - rec.t[0]:.6g} s for "
+                             f"{rec.n_samples} rows at {rec.sample_rate_hz:g} Hz: more missing "
+                             "samples than the recording holds (a corrupted time stamp?)",
+                             path=rec.name)
     k = rec.grid_slots
     n = int(k[-1]) + 1 if k.size else 0
     grid = np.full((n, rec.samples.shape[1]), np.nan)

@@ -69,7 +69,7 @@ def test_train_then_predict_round_trip(folders, tmp_path):
     below = int((table["probability"] < cut).sum())
     with pytest.warns(UserWarning, match="fewer than 10 recordings"):
         result = runner.invoke(app, ["predict", str(model), "--dataset", f"recordings:{test}",
-                                     "--out", str(out), "--abstain", str(cut)])
+                                     "--out", str(out), "--abstain", str(cut), "--overwrite"])
     assert result.exit_code == 0, result.output
     abstained = pd.read_csv(out)
     assert ((abstained["predicted"] == "abstain") == (table["probability"] < cut)).all()
@@ -158,9 +158,9 @@ def test_errors_name_the_problem(folders, tmp_path):
     for src in sorted(folders[0].glob("*.csv"))[:4]:  # the first class only
         for path in (src, src.with_suffix(".json")):
             (one / path.name).write_bytes(path.read_bytes())
-    for command in ("train", "evaluate"):
+    for command, suffix in (("train", ".skops"), ("evaluate", ".csv")):
         result = runner.invoke(app, [command, "--dataset", f"recordings:{one}", "--features",
-                                     "handcrafted", "--out", str(tmp_path / f"{command}.out")])
+                                     "handcrafted", "--out", str(tmp_path / f"{command}{suffix}")])
         assert result.exit_code == 1, result.output
         assert "a classifier needs at least two classes of 'label'; all 4 recordings are" \
             in result.output
@@ -210,7 +210,7 @@ def test_a_crafted_or_damaged_model_file_is_refused_and_runs_no_code(folders, tm
         pickled: "evil.joblib: not a model written by `frictionfit train` (a pickle/joblib file",
         crafted: "evil.skops: refused: the file holds types frictionfit does not trust "
                  "['test_cli_classify._Inert']",
-        half: "half.skops: not a model written by `frictionfit train`",
+        half: "half.skops: damaged: the model file is cut short",
         tmp_path / "empty.skops": "empty.skops: the model file is empty",
         tmp_path / "garbage.skops": "garbage.skops: not a model written by `frictionfit train`",
     }

@@ -51,9 +51,17 @@ def test_simulate_never_writes_over_a_recording_it_did_not_make(tmp_path):
     assert result.exit_code == 2 and "holds recordings that are not simulated (e.g. " \
         "s1_paper-1_01.json)" in result.output
     assert (tmp_path / "s1_paper-1_01.csv").read_bytes() == before
-    for _ in range(2):  # its own output it may write again
-        again = runner.invoke(app, ["simulate", "--out", str(tmp_path / "own"), *args])
-        assert again.exit_code == 0, again.output
+    first = runner.invoke(app, ["simulate", "--out", str(tmp_path / "own"), *args])
+    assert first.exit_code == 0, first.output
+    again = runner.invoke(app, ["simulate", "--out", str(tmp_path / "own"), *args])
+    assert again.exit_code == 2 and "holds 1 simulated file(s) (e.g. s1_paper-1_01.json): add " \
+        "--overwrite" in again.output
+    again = runner.invoke(app, ["simulate", "--out", str(tmp_path / "own"), *args,
+                                "--overwrite"])  # its own output it may write again, if asked
+    assert again.exit_code == 0, again.output
+    lab_again = runner.invoke(app, ["simulate", "--out", str(tmp_path), *args, "--overwrite"])
+    assert lab_again.exit_code == 2 and "not simulated" in lab_again.output
+    assert (tmp_path / "s1_paper-1_01.csv").read_bytes() == before
     file = tmp_path / "file"
     file.write_text("")
     result = runner.invoke(app, ["simulate", "--out", str(file), *args])
@@ -76,7 +84,7 @@ def test_plot_writes_a_png(simulated, tmp_path):
     # the four analysed motions are.
     for extra, shaded in (([], 5), (["--no-events"], 4)):
         result = runner.invoke(app, ["plot", str(out / "s1_paper-1_01.csv"), "--out", str(png),
-                                     *extra])
+                                     "--overwrite", *extra])
         assert result.exit_code == 0, result.output
         assert f"{shaded} motion(s) shaded" in result.output
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

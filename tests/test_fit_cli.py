@@ -52,7 +52,8 @@ def test_a_rate_mismatch_is_said_and_skips_the_recording(tmp_path):
     assert "(1 of 2 recordings)" in result.output
     assert {t.split("/")[0] for t in pd.read_csv(out)["trial"]} == {"good"}
     result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--model",
-                                      "elastic_plastic", "--out", str(out), "--strict"])
+                                      "elastic_plastic", "--out", str(out), "--strict",
+                                      "--overwrite"])
     assert result.exit_code == 2 and "liar.csv: median sample interval" in result.output
 
 
@@ -160,6 +161,7 @@ def test_motions_fit_the_channels_asked_and_skip_a_dead_one_by_name(tmp_path):
     assert result.exit_code == 0, result.output
     assert "skipped m1: channel 'thumb_x': constant at 0.25 N (dead?)" in result.output
     assert sorted(pd.read_csv(out)["trial"]) == ["m1/motion1/index_x"]
+    args.append("--overwrite")
     result = CliRunner().invoke(app, [*args, "--strict"])
     assert result.exit_code == 2 and "m1: channel 'thumb_x': constant" in result.output
     result = CliRunner().invoke(app, [*args, "--channel", "thumb_x"])
@@ -180,6 +182,10 @@ def test_motions_fit_only_the_channels_asked(tmp_path):
 
 def test_fit_with_nothing_to_fit_exits_2(tmp_path):
     result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions"])
+    assert result.exit_code == 2 and "the folder is empty of recordings" in result.output
+    (tmp_path / "x.csv").write_text("t,a\n0,1\n")  # no sidecar: skipped, nothing left
+    result = CliRunner().invoke(app, ["fit", str(tmp_path), "--motions", "--out",
+                                      str(tmp_path.parent / f"{tmp_path.name}.csv")])
     assert result.exit_code == 2 and "no motion could be segmented" in result.output
 
 

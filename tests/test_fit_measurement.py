@@ -287,16 +287,16 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
     assert k[0] < measurement_truth(simulated[1], "k") < k[2]
     assert [p.name for p in plots.iterdir()] == ["one__index_x.png"]
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--tie", "k",
-                                   "--out", str(out)])
+                                   "--out", str(out), "--overwrite"])
     assert bad.exit_code != 0 and "per-motion fits only: add --motions" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--uncertainty", "mcmc",
-                                   "--out", str(out)])
+                                   "--out", str(out), "--overwrite"])
     assert bad.exit_code != 0 and "choose none, laplace, emcee or auto" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--fix", "stiffness=1",
-                                   "--out", str(out)])
+                                   "--out", str(out), "--overwrite"])
     assert bad.exit_code != 0 and "cannot fix ['stiffness']" in bad.output
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--rig", "motor",
-                                   "--out", str(out)])
+                                   "--out", str(out), "--overwrite"])
     assert bad.exit_code != 0 and "choose recording or session" in bad.output
 
 
@@ -317,7 +317,7 @@ def test_a_dead_channel_is_named_and_the_others_fitted(tmp_path, simulated):
     frame = pd.read_csv(out)
     assert frame["trial"].tolist() == ["dead/thumb_x"] and frame["status"][0] == "converged"
     alone = CliRunner().invoke(app, ["fit", str(tmp_path / "dead.csv"), "--channel", "index_x",
-                                     "--out", str(out)])
+                                     "--out", str(out), "--overwrite"])
     assert alone.exit_code == 2 and "no recording could be fitted" in alone.output
 
 
@@ -386,7 +386,7 @@ def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
     day_one = [r for r in simulated if r.metadata["session"] == 1][:2]
     for k, rec in enumerate(day_one):
         write_recording(rec, tmp_path / f"r{k}")
-    out = tmp_path / "session.csv"
+    out = tmp_path.parent / f"{tmp_path.name}-session.csv"  # not in the folder fitted
     run = CliRunner().invoke(app, ["fit", str(tmp_path), "--channel", "index_x", "--model",
                                    "relaxation2", "--rig", "session", "--out", str(out)])
     assert run.exit_code == 0, run.output
@@ -399,12 +399,12 @@ def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
         assert frame[column].nunique() == 1
     assert (frame["delay_flag"] != "fixed").all()  # the latency stays each recording's
     # the day's profile saved, a recording fitted later on its own holds it
-    rigs = tmp_path / "rigs.json"
+    rigs = tmp_path.parent / f"{tmp_path.name}-rigs.json"
     run = CliRunner().invoke(app, ["fit", str(tmp_path), "--channel", "index_x", "--model",
                                    "relaxation2", "--rig", "session", "--save-rig", str(rigs),
-                                   "--out", str(out)])
+                                   "--out", str(out), "--overwrite"])
     assert run.exit_code == 0, run.output
-    later = tmp_path / "later.csv"
+    later = tmp_path.parent / f"{tmp_path.name}-later.csv"
     run = CliRunner().invoke(app, ["fit", str(tmp_path / "r0.csv"), "--channel", "index_x",
                                    "--model", "relaxation2", "--rig", str(rigs), "--out",
                                    str(later)])
@@ -412,7 +412,7 @@ def test_cli_holds_the_rig_of_each_session(tmp_path, simulated, monkeypatch):
     k = next(c for c in frame.columns if c.startswith("k ["))
     assert pd.read_csv(later)[k][0] == pytest.approx(frame[k][0], rel=1e-6)
     bad = CliRunner().invoke(app, ["fit", str(tmp_path), "--save-rig", str(rigs), "--out",
-                                   str(out)])
+                                   str(out), "--overwrite"])
     assert bad.exit_code != 0 and "estimated with --rig session" in bad.output
 
 

@@ -35,6 +35,27 @@ _COMMANDS = (  # name, function, the one line in `frictionfit --help`
     ("rub", acquire.rub, "Run the rubbing protocol on a gripper while recording."),
     ("bench", bench.bench, "Benchmark speed against error on simulated data."),
 )
+
+
+@app.callback()
+def _plain_warnings() -> None:
+    """Warnings reach the user as one ``warning: ...`` line each on stderr, said once: not
+    Python's raw ``file:line: Category: ...`` lines (only their formatting changes: code that
+    records warnings still receives them)."""
+    import warnings
+
+    seen: set[str] = set()
+
+    def plain(message, category, filename, lineno, line=None) -> str:
+        text = " ".join(str(message).split())
+        if text in seen:
+            return ""
+        seen.add(text)
+        return f"warning: {text}\n"
+
+    warnings.formatwarning = plain
+
+
 for _name, _func, _line in _COMMANDS:
     app.command(_name, short_help=_line)(_func)
 app.add_typer(simulate.app, name="simulate",

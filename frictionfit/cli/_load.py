@@ -1,10 +1,14 @@
-"""Reading recordings for a command: skipped files named on stderr, counts said."""
+"""What a command reads and writes: recordings read with the files skipped named on stderr and
+counts said; outputs checked before any work (never a recording, nor a file the command reads;
+an existing one replaced only with ``--overwrite``); a line per stage of a long command."""
 
 from __future__ import annotations
 
+import json
 import os
 import warnings
 from collections import Counter
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -14,6 +18,10 @@ STRICT_HELP = ("Stop at the first recording that cannot be used (default: skip i
 #: The whole-measurement fits' laws, as the commands that fit them explain them.
 WHOLE_LAWS_HELP = ("auto (by BIC: no static peak, a static peak, or a static peak with viscous "
                    "damping), no_peak2, relaxation, relaxation2 or rich.")
+
+
+#: Skipped files named when none of a dataset's could be used (the error counts the reasons).
+SHOWN_WHEN_NONE = 10
 
 
 def fail(message: str, code: int = 1):
@@ -29,18 +37,25 @@ def load_recordings(spec: str, strict: bool = False) -> list:
     from frictionfit.errors import FrictionfitError
     from frictionfit.recording import DatasetWarning
 
+    failure, recordings = None, []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DatasetWarning)
         try:
             recordings = load_dataset(spec, strict=strict)
         except FrictionfitError as exc:
-            fail(str(exc))
+            failure = str(exc)
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in caught:
-        if w in skipped:
-            typer.echo(str(w.message), err=True)
-        else:
+        if w not in skipped:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    # every file skipped is named; when none could be used, the first few and the reasons
+    shown = skipped if failure is None else skipped[:SHOWN_WHEN_NONE]
+    for w in shown:
+        typer.echo(str(w.message), err=True)
+    if failure is not None:
+        if len(skipped) > len(shown):
+            typer.echo(f"... and {len(skipped) - len(shown)} more skipped", err=True)
+        fail(failure)
     if not recordings:
         fail(f"dataset {spec!r} holds no recordings")
     if skipped:
@@ -88,3 +103,91 @@ def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = (
         raise typer.BadParameter(f"{path}: folder {folder} does not exist", param_hint=option)
     if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise typer.BadParameter(f"{path}: not writable", param_hint=option)
+
+
+OVERWRITE_HELP = ("Replace an existing output file (never a recording, nor a file the command "
+                  "reads: those are refused whatever this says).")
+
+
+def is_recording(path: Path) -> bool:
+    """Whether ``path`` is part of a recording a reader recognises: a ``<name>.csv`` +
+    ``<name>.json`` pair, a sidecar (a JSON object with ``sample_rate_hz`` and
+    ``channels``), or a FabricSlide slide."""
+    from frictionfit.recording import looks_like_fabricslide, recording_paths
+
+    if not path.exists():
+        return False
+    path = path.resolve()  # a link to a recording's file is that file
+    if path.suffix not in (".csv", ".json"):
+        return False
+    csv, side = recording_paths(path)
+    if csv.is_file() and side.is_file():
+        return True
+    if path.suffix == ".csv":
+        return looks_like_fabricslide(path)
+    try:
+        head = json.loads(path.read_text(errors="replace"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(head, dict) and {"sample_rate_hz", "channels"} <= set(head)
+
+
+def dataset_reads(spec: str) -> list[Path]:
+    """The files a ``KIND:PATH`` dataset spec reads (:func:`reads_of` its path)."""
+    _, sep, path = spec.partition(":")
+    return reads_of([Path(path)]) if sep and path else []
+
+
+def reads_of(paths: list[Path]) -> list[Path]:
+    """The files a command that reads the recordings (or dataset folders) ``paths`` reads:
+    each recording's CSV and sidecar, and every .csv, .json and .npz file of a folder."""
+    from frictionfit.recording import recording_paths
+
+    out = []
+    for p in paths:
+        if p.is_dir():
+            out += [f for f in p.rglob("*") if f.suffix in (".csv", ".json", ".npz")]
+        else:
+            out += [p, *recording_paths(p)]
+    return out
+
+
+def check_output(path: Path | None, option: str, suffixes: tuple[str, ...] = (), *,
+                 overwrite: bool = False, reads: list[Path] = (), replaces: bool = True) -> None:
+    """Refuse, before any work is done, an output path that cannot be written (see
+    :func:`check_writable`), that is a recording (:func:`is_recording`) or a file the
+    command reads (``reads``), whatever ``overwrite`` says, or that exists already unless
+    ``overwrite`` (``replaces=False``: the command adds to the file instead)."""
+    if path is None:
+        return
+    check_writable(path, option, suffixes)
+    if is_recording(path):
+        raise typer.BadParameter(f"{path} is a recording: frictionfit never writes over a "
+                                 "recording; choose another name", param_hint=option)
+    here = path.resolve()
+    if any(here == Path(r).resolve() for r in reads):
+        raise typer.BadParameter(f"{path} is a file this command reads: choose another name",
+                                 param_hint=option)
+    if replaces and path.exists() and not overwrite:
+        raise typer.BadParameter(f"{path} exists: add --overwrite to replace it, or choose "
+                                 "another name", param_hint=option)
+
+
+@contextmanager
+def stage(words: str):
+    """A stage of a long command: on a terminal a spinner with ``words`` while it runs;
+    otherwise (a log, a pipe) a ``words ...`` line on stderr when it starts. Either way a
+    line with its duration (s) when it ends."""
+    import sys
+    import time
+
+    start = time.perf_counter()
+    if sys.stderr.isatty():
+        from rich.console import Console
+
+        with Console(stderr=True).status(words):
+            yield
+    else:
+        typer.echo(f"{words} ...", err=True)
+        yield
+    typer.echo(f"{words}: done in {time.perf_counter() - start:.1f} s", err=True)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import check_writable, make_folder
+from frictionfit.cli._load import OVERWRITE_HELP, check_output, make_folder, reads_of
 
 STAGES = ("fit", "uncertainty", "classify")
 
@@ -37,6 +37,7 @@ def bench(
                                  "(e.g. docs/results.md)."),
     dataset: Path = typer.Option(None, help="lab: a folder of rubbing recordings, e.g. "
                                  "../shared/datasets/rubbing-lab (--quick: every 20th)."),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Run the benchmark on simulated trials with known truth (or, lab, on recordings without
     one); write the JSON, table and plot."""
@@ -49,7 +50,10 @@ def bench(
         raise typer.BadParameter("lab needs a folder of recordings, and only lab takes one",
                                  param_hint="--dataset")
     make_folder(out, "--out")
-    check_writable(results, "--results")
+    reads = reads_of([dataset]) if dataset is not None else []
+    for name in ("bench.json", "bench.md", "speed_vs_error.png"):
+        check_output(out / name, "--out", overwrite=overwrite, reads=reads)
+    check_output(results, "--results", reads=reads, replaces=False)
     from frictionfit.bench.report import merge, record_results, write_report
 
     stages = [_run_stage(s, quick, seed) for s in STAGES if what in (s, "all")]

@@ -6,7 +6,15 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of, write_table
+from frictionfit.cli._load import (
+    OVERWRITE_HELP,
+    STRICT_HELP,
+    check_output,
+    dataset_reads,
+    problems_of,
+    stage,
+    write_table,
+)
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
@@ -19,6 +27,8 @@ FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
                 "within-class scatter), none, or auto: lda when the data span several sessions.")
+#: Figure formats the commands write.
+_FIGURES = (".png", ".pdf", ".svg")
 #: Metadata columns written beside the features / predictions when present.
 GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
 #: The feature set of each dataset kind when ``--features`` is not given. Rubbing
@@ -63,18 +73,21 @@ def features(
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     out: Path = typer.Option(Path("features.csv"), help="Output table (.csv or .parquet)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Write one row per recording: recording, label, group columns, then the features."""
     import pandas as pd
 
     from frictionfit.features import make_features
 
-    check_writable(out, "--out", (".csv", ".parquet"))
+    check_output(out, "--out", (".csv", ".parquet"), overwrite=overwrite,
+                 reads=dataset_reads(dataset))
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
         transformer = make_features(features)
-        x = transformer.fit_transform(recordings)
+        with stage(f"features ({features}) of {len(recordings)} recordings"):
+            x = transformer.fit_transform(recordings)
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
     meta = pd.DataFrame([{"recording": r.name, "label": r.label, **_groups(r),
@@ -97,6 +110,7 @@ def train(
     draws: int = typer.Option(32, min=0, help="With --calibrate: average the probabilities "
                               "over this many feature draws per recording (0: point values)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Train features -> (session standardisation) -> scaler -> (projection) -> classifier.
 
@@ -110,7 +124,7 @@ def train(
     from frictionfit.model_file import save_model
     from frictionfit.transfer import RigTransfer, rigs_of
 
-    check_writable(out, "--out")
+    check_output(out, "--out", (".skops",), overwrite=overwrite, reads=dataset_reads(dataset))
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
@@ -120,7 +134,8 @@ def train(
                                  probability=calibrate)
         model = (RigTransfer(CalibratedPipeline(pipeline, n_draws=draws, seed=seed))
                  if calibrate else pipeline)
-        model.fit(recordings, y)
+        with stage(f"training on {len(recordings)} recordings ({features})"):
+            model.fit(recordings, y)
     except (FrictionfitError, ValueError, ImportError) as exc:
         _fail(str(exc))
     fitted = model.model_.pipeline_ if calibrate else model
@@ -133,6 +148,7 @@ def train(
         "labels": sorted(map(str, set(y))),
         "dataset_kind": dataset.partition(":")[0],
         "channels": [[c.name, c.unit] for c in recordings[0].channels],
+        "sample_rates_hz": sorted({float(r.sample_rate_hz) for r in recordings}),
         "n_train": len(recordings),
         "rigs": rigs_of(recordings),
         "frictionfit_version": _version(),
@@ -162,6 +178,7 @@ def predict(
     abstain: float = typer.Option(0.0, min=0.0, max=1.0, help="Write 'abstain' as the "
                                   "prediction where the top probability is below this."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Write recording, predicted, probability, true label and the top-3 classes.
 
@@ -176,7 +193,8 @@ def predict(
     from frictionfit.errors import ModelError
     from frictionfit.model_file import load_model
 
-    check_writable(out, "--out", (".csv",))
+    check_output(out, "--out", (".csv",), overwrite=overwrite,
+                 reads=[model, *dataset_reads(dataset)])
     try:
         saved = load_model(model)
     except ModelError as exc:
@@ -189,10 +207,12 @@ def predict(
     recordings = _load(dataset, strict)
     _check_channels(saved, model, recordings)
     _say_rigs(saved, model, recordings)
+    other_rate = _other_rates(saved, model, recordings)
     try:
-        predicted = pipeline.predict(recordings)
-        proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
-            else None
+        with stage(f"predicting {len(recordings)} recordings ({saved['features']})"):
+            predicted = pipeline.predict(recordings)
+            proba = pipeline.predict_proba(recordings) if hasattr(pipeline, "predict_proba") \
+                else None
     except (ValueError, ImportError) as exc:
         _fail(str(exc))
     table = pd.DataFrame({"recording": [r.name for r in recordings], "predicted": predicted})
@@ -217,7 +237,8 @@ def predict(
         table = pd.concat([table, top], axis=1)
     if hasattr(pipeline, "seen"):
         table["rig_seen"] = pipeline.seen(recordings)
-    table["problems"] = [problems_of(r) for r in recordings]
+    table["problems"] = ["; ".join(filter(None, (problems_of(r), other_rate.get(r.name, ""))))
+                         for r in recordings]
     table.to_csv(out, index=False)
     typer.echo(f"{len(table)} predictions -> {out}")
     if "true" in table:
@@ -266,6 +287,24 @@ def _check_channels(saved: dict, model: Path, recordings: list) -> None:
                   f"(it has {[f'{n} [{u}]' for n, u in have][:6]})")
 
 
+def _other_rates(saved: dict, model: Path, recordings: list) -> dict[str, str]:
+    """Recordings at a sample rate the model was not trained at, each named on stderr:
+    name -> ``[other_rate] ...`` (empty for a model file that does not record its rates)."""
+    rates = saved.get("sample_rates_hz")
+    if not rates:
+        return {}
+    trained = ", ".join(f"{r:g}" for r in rates)
+    out = {r.name: f"[other_rate] recorded at {r.sample_rate_hz:g} Hz; {model.name} was "
+                   f"trained at {trained} Hz: its features, and so the probabilities, may differ"
+           for r in recordings if not any(abs(r.sample_rate_hz / x - 1) < 1e-6 for x in rates)}
+    for name, words in out.items():
+        typer.echo(f"{name}: {words}", err=True)
+    if out:
+        typer.echo(f"{len(out)} of {len(recordings)} recording(s) at a sample rate the model was "
+                   "not trained at (named above; the 'problems' column says so)", err=True)
+    return out
+
+
 def evaluate(
     dataset: str = typer.Option(..., help=DATASET_HELP),
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
@@ -295,16 +334,20 @@ def evaluate(
     results: Path = typer.Option(None, help="Also add the scores, dated, to this results file "
                                  "(e.g. docs/results.md)."),
     strict: bool = typer.Option(False, help=STRICT_HELP),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Train and test under a protocol; print accuracy and macro-F1 (last line: accuracy)."""
     import pandas as pd
 
     from frictionfit.classify import projection_for
 
-    for path, option in ((out, "--out"), (confusion, "--confusion"),
-                         (reliability, "--reliability"), (predictions, "--predictions"),
-                         (results, "--results")):
-        check_writable(path, option)
+    reads = dataset_reads(dataset)
+    for path, option, suffixes in ((out, "--out", (".csv",)),
+                                   (confusion, "--confusion", _FIGURES),
+                                   (reliability, "--reliability", _FIGURES),
+                                   (predictions, "--predictions", (".csv",))):
+        check_output(path, option, suffixes, overwrite=overwrite, reads=reads)
+    check_output(results, "--results", (".md",), reads=reads, replaces=False)
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:

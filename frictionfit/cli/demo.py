@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import WHOLE_LAWS_HELP
+from frictionfit.cli._load import WHOLE_LAWS_HELP, check_output, reads_of
 
 #: The sample set shipped in ``data/``; ``frictionfit simulate`` remakes it with these.
 #: With the motor's position reads at 50 Hz, as ``frictionfit rub`` writes them.
@@ -78,6 +78,8 @@ def demo(
     from frictionfit.simulation.measurements import measurement_truth
 
     out.mkdir(parents=True, exist_ok=True)
+    # the demo's own fits.csv is written again on every run; never a recording or its data
+    check_output(out / "fits.csv", "--out", overwrite=True, reads=reads_of([data]))
     recs = _sample_recordings(data, out)
     typer.echo(f"read {len(recs)} recordings: {', '.join(r.name for r in recs)}")
     n_motions, worst = 0, 0.0

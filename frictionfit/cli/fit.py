@@ -11,11 +11,14 @@ import numpy as np
 import typer
 
 from frictionfit.cli._load import (
+    OVERWRITE_HELP,
     STRICT_HELP,
     WHOLE_LAWS_HELP,
-    check_writable,
+    check_output,
     make_folder,
     problems_of,
+    reads_of,
+    stage,
     write_table,
 )
 
@@ -80,6 +83,7 @@ def fit(
     scheduler: str = typer.Option(None, help="--motions: Dask scheduler address (e.g. "
                                   "tcp://host:8786): partition the trials across its workers; "
                                   "results equal the local ones up to rounding."),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Fit the contact model to recordings; one row per recording x channel (whole fits) or per
     motion x channel (--motions), each with its status, values, stderr and flags.
@@ -89,11 +93,12 @@ def fit(
     recordings at different sample rates run on their own time grids."""
     fixed = _fixes(fix)
     priors = _priors(prior)
-    check_writable(out, "--out", (".csv", ".parquet"))
-    check_writable(chains, "--chains", (".h5", ".hdf5"))
+    _check_outputs(paths, rig, overwrite, ((out, "--out", (".csv", ".parquet")),
+                                           (chains, "--chains", (".h5", ".hdf5")),
+                                           (save_rig, "--save-rig", (".json",))))
     if plot is not None:
         make_folder(plot, "--plot")
-    files = [f for p in paths for f in (sorted(p.glob("*.csv")) if p.is_dir() else [p])]
+    files = _files(paths)
     if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~0.7 s)
         from frictionfit.uncertainty import METHODS
 
@@ -110,7 +115,7 @@ def fit(
                                      "--motions", param_hint="--whole")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
                    priors, stroke_mm, _rig_option(rig, save_rig), uncertainty,
-                   _Output(out, plot, report, save_rig))
+                   _Output(out, plot, report, save_rig, overwrite))
         return
     if rig != "recording" or save_rig is not None:
         raise typer.BadParameter("per-motion fits fit the motor per motion",
@@ -121,7 +126,8 @@ def fit(
     options = dict(model=model, solver=solver, stroke_mm=stroke_mm, n_starts=n_starts, seed=seed,
                    fix=fixed, tie=tie, priors=priors)
     _fit_motions(files, strict, tuple(channel), options,
-                 _Posterior(uncertainty, chains, scheduler), _Output(out, plot, report))
+                 _Posterior(uncertainty, chains, scheduler),
+                 _Output(out, plot, report, overwrite=overwrite))
 
 
 @dataclass(frozen=True)
@@ -132,6 +138,41 @@ class _Output:
     plots: Path | None
     report: bool
     rigs: Path | None = None  # whole fits: the sessions' motor profiles (.json)
+    overwrite: bool = False  # replace existing PNGs in ``plots``
+
+    def check_plots(self, ids: Sequence[str]) -> None:
+        """Refuse, before fitting, PNGs of ``ids`` that exist in ``plots`` (without
+        ``overwrite``)."""
+        if self.plots is not None:
+            for name in ids:
+                check_output(_plot_path(self.plots, name), "--plot", overwrite=self.overwrite)
+
+
+def _check_outputs(paths: list[Path], rig: str, overwrite: bool, outputs: tuple) -> None:
+    """Each ``(path, option, suffixes)`` of ``outputs`` checked before any work
+    (:func:`~frictionfit.cli._load.check_output`) against what the command reads: the
+    recordings of ``paths`` and a ``--rig`` file."""
+    reads = reads_of(paths) + ([Path(rig)] if rig.endswith(".json") else [])
+    for path, option, suffixes in outputs:
+        check_output(path, option, suffixes, overwrite=overwrite, reads=reads)
+
+
+def _plot_path(folder: Path, name: str) -> Path:
+    """The data-vs-fit PNG of row ``name`` in ``folder``."""
+    return folder / (name.replace("/", "__") + ".png")
+
+
+def _files(paths: list[Path]) -> list[Path]:
+    """The recordings of ``paths`` (a folder: its ``*.csv``, sorted); an empty folder is
+    refused in words."""
+    files = []
+    for p in paths:
+        found = sorted(p.glob("*.csv")) if p.is_dir() else [p]
+        if p.is_dir() and not found:
+            raise typer.BadParameter(f"{p}: the folder is empty of recordings (no <name>.csv)",
+                                     param_hint="PATHS")
+        files += found
+    return files
 
 
 @dataclass(frozen=True)
@@ -156,6 +197,7 @@ def _fit_motions(files: list[Path], strict: bool, channels: tuple[str, ...], opt
     if not batches:
         typer.echo("error: no motion could be segmented from the given paths", err=True)
         raise typer.Exit(2)
+    output.check_plots([i for b in batches for i in b.ids])
     n_trials = sum(b.n_trials for b in batches)
     typer.echo(f"fitting {n_trials} trials ({used} of {len(files)} recordings), "
                f"model={options['model']} ...")
@@ -169,13 +211,15 @@ def _fit_motions(files: list[Path], strict: bool, channels: tuple[str, ...], opt
                 result = fit_distributed(trials, scheduler=posterior.scheduler, groups=groups,
                                          **options)
             else:
-                result = fit_trials(trials, groups=groups, **options)
+                with stage(f"fitting {_count(trials.n_trials, 'trial')}"):
+                    result = fit_trials(trials, groups=groups, **options)
         except (FrictionfitError, ValueError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
         frame = result.to_frame(trials.ids)
         if posterior.method != "none":
-            post = _posterior(result, trials, posterior)
+            with stage(f"posteriors ({posterior.method}) of {_count(trials.n_trials, 'trial')}"):
+                post = _posterior(result, trials, posterior)
             typer.echo(f"posteriors ({posterior.method}) in {post.wall_s:.1f} s: "
                        f"{post.verdict()}")
             frame = frame.merge(post.to_frame(trials.ids), on="trial")
@@ -197,7 +241,7 @@ def _plots(result, curves: list[tuple], ids: list[str], folder: Path | None) -> 
 
     folder.mkdir(parents=True, exist_ok=True)
     for i, ((t, y), name) in enumerate(zip(curves, ids, strict=True)):
-        plot_fit(result, i, t, y, folder / (name.replace("/", "__") + ".png"), title=name)
+        plot_fit(result, i, t, y, _plot_path(folder, name), title=name)
 
 
 def _count(n: int, noun: str) -> str:
@@ -250,12 +294,11 @@ def _prepared(files: list[Path], strict: bool, prepare):
 
 def _rig_option(rig: str, save_rig: Path | None) -> str | dict:
     """``--rig`` as ``fit_measurements`` takes it: a name, or the session profiles read from a
-    .json file; ``--save-rig`` checked (it needs ``--rig session`` and a writable .json)."""
+    .json file; ``--save-rig`` checked (it needs ``--rig session``)."""
     if save_rig is not None:
         if rig != "session":
             raise typer.BadParameter("the profiles are estimated with --rig session",
                                      param_hint="--save-rig")
-        check_writable(save_rig, "--save-rig", (".json",))
     if rig in ("recording", "session"):
         return rig
     if not rig.endswith(".json"):
@@ -289,6 +332,9 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
 
     def fitted_channels(rec):
         """The channels of ``rec`` that can be fitted (:func:`_each_channel`)."""
+        if not any(e.kind == "move" for e in rec.events):
+            raise ValueError(f"{rec.name}: no 'move' events: a whole fit needs the motor's "
+                             "commands; fit the motions found in the force with --motions")
         return _each_channel(rec, channels, strict,
                              lambda ch: measurement_data(rec, ch, stroke_mm=stroke_mm))
 
@@ -299,9 +345,11 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     if not items:
         typer.echo("error: no recording could be fitted from the given paths", err=True)
         raise typer.Exit(2)
+    output.check_plots([f"{d.name}/{d.channel}" for d in items])
     typer.echo(f"fitting {_count(len(items), 'recording channel')} whole, law={law} ...")
     try:
-        result = fit_measurements(items, model=model, fix=fixed, rig=rig)
+        with stage(f"fitting {_count(len(items), 'recording channel')}"):
+            result = fit_measurements(items, model=model, fix=fixed, rig=rig)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--fix / --rig") from None
     if output.rigs is not None:
@@ -317,11 +365,15 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     if uncertainty != "none":
         from frictionfit.uncertainty import measurement_posterior
 
-        post = measurement_posterior(result, items, method=uncertainty)
+        with stage(f"posteriors ({uncertainty}) of {_count(len(items), 'row')}"
+                   + (", ~15 s a row" if uncertainty != "laplace" else "")):
+            post = measurement_posterior(result, items, method=uncertainty)
         frame = frame.merge(post.to_frame(ids), on="trial")
         typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s: {post.verdict()}")
     _write(frame, output.table, "recording channel", result.wall_s)
-    _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
+    if output.plots is not None:
+        with stage(f"plotting {_count(len(ids), 'row')} into {output.plots}"):
+            _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:
         typer.echo(fit_report(result, 0))
 

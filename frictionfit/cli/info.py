@@ -18,17 +18,19 @@ def _dataset(spec: str, strict: bool) -> None:
     recs = load_recordings(spec if not Path(spec).is_dir() else f"recordings:{spec}", strict)
     labels = Counter(str(r.label) for r in recs)
     sessions = sorted({r.metadata.get("session") for r in recs}, key=str)
+    if sessions == [None]:  # a dataset without sessions (FabricSlide, gestures): one column
+        sessions = []
     problems = Counter(p.kind for r in recs for p in r.problems)
     flagged = [r for r in recs if r.problems]
     typer.echo(f"{spec}: {len(recs)} recordings, {len(labels)} labels, "
-               f"{len(sessions)} session(s), {len(flagged)} with problems")
+               f"{len(sessions) or 'no'} session(s), {len(flagged)} with problems")
     typer.echo(f"channels: {', '.join(f'{c.name} [{c.unit}]' for c in recs[0].channels)}")
     per = Counter((str(r.label), r.metadata.get("session")) for r in recs)
     width = max(len(label) for label in labels)
-    typer.echo(f"{'label':{width}s}  " + "  ".join(f"s{s}" for s in sessions) + "  total")
+    typer.echo(f"{'label':{width}s}  " + "".join(f"s{s}  " for s in sessions) + "total")
     for label in sorted(labels):
-        cells = "  ".join(f"{per[(label, s)]:>{len(f's{s}')}d}" for s in sessions)
-        typer.echo(f"{label:{width}s}  {cells}  {labels[label]:5d}")
+        cells = "".join(f"{per[(label, s)]:>{len(f's{s}')}d}  " for s in sessions)
+        typer.echo(f"{label:{width}s}  {cells}{labels[label]:5d}")
     if problems:
         typer.echo("problems: " + ", ".join(f"{k} x{n}" for k, n in sorted(problems.items())))
         for r in flagged:
@@ -64,6 +66,10 @@ def _recording(path: Path) -> None:
         typer.echo(f"other sidecar keys: {sorted(rec.extra)}")
     for p in rec.problems:
         typer.echo(f"problem [{p.kind}]: {p}")
+    if rec.disqualified:
+        typer.echo(f"error: {path}: unusable, every command skips it: "
+                   + "; ".join(f"[{p.kind}] {p}" for p in rec.disqualified), err=True)
+        raise typer.Exit(1)
 
 
 #: Breaks of the acquisition ``info`` lists one by one; the rest are counted.

@@ -6,8 +6,10 @@ from pathlib import Path
 
 import typer
 
-from frictionfit.cli._load import make_folder
+from frictionfit.cli._load import OVERWRITE_HELP, check_output, make_folder, reads_of
 
+#: Figure formats ``--out`` may name.
+FORMATS = (".png", ".pdf", ".svg")
 #: Phase shading, in colours no channel line uses.
 _SHADE = {"move_out": "gold", "move_back": "gold",
           "relax_out": "lightsteelblue", "relax_back": "lightsteelblue"}
@@ -22,6 +24,7 @@ def plot(
                              "folder)."),
     no_events: bool = typer.Option(False, "--no-events",
                                    help="Find the phases from the force alone."),
+    overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
     """Plot every channel against time, phases shaded (movement yellow, relaxation blue),
     missing samples (dropped rows, NaN) hatched red."""
@@ -30,18 +33,25 @@ def plot(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from frictionfit.errors import FrictionfitError
+    from frictionfit.errors import FrictionfitError, RecordingError
     from frictionfit.recording import read_recording, recording_paths
     from frictionfit.segmentation import segment
 
+    out = out or Path(recording_paths(path)[0].stem + ".png")
+    if out.suffix not in FORMATS:
+        raise typer.BadParameter(f"{out}: write {', '.join(FORMATS)} (a figure)",
+                                 param_hint="--out")
+    make_folder(out.parent, "--out")
+    check_output(out, "--out", FORMATS, overwrite=overwrite, reads=reads_of([path]))
     try:
         rec = read_recording(path, on_error="flag")
+        for p in rec.disqualified:  # time stamps no grid can hold: nothing to shade
+            if p.kind in ("too_short", "nonfinite_time", "nonmonotonic_time", "time_span"):
+                raise RecordingError(str(p), path=recording_paths(path)[0])
         motions = segment(rec, drop_first=False, use_events=not no_events)
     except FrictionfitError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    out = out or Path(recording_paths(path)[0].stem + ".png")
-    make_folder(out.parent, "--out")
     fig, ax = plt.subplots(figsize=(12, 5), constrained_layout=True)
     for m in motions:
         for p in m.phases:

@@ -11,9 +11,10 @@ from frictionfit.cli._load import make_folder
 app = typer.Typer(help="Simulate rubbing measurements or touch gestures with known truth.")
 
 
-def _folder(out: Path) -> None:
+def _folder(out: Path, overwrite: bool, pattern: str = "*.json") -> None:
     """Make ``out``, before any work; refuse a folder that holds recordings which are not
-    simulated (their names could be the simulator's: a lab's data is never overwritten)."""
+    simulated (their names could be the simulator's: a lab's data is never overwritten), and
+    one holding simulated files (``pattern``) unless ``overwrite``."""
     import json
 
     make_folder(out, "--out")
@@ -25,6 +26,11 @@ def _folder(out: Path) -> None:
         if synthetic is not True:
             raise typer.BadParameter(f"{out} holds recordings that are not simulated (e.g. "
                                      f"{side.name}); choose another folder", param_hint="--out")
+    made = sorted(out.glob(pattern))
+    if made and not overwrite:
+        raise typer.BadParameter(f"{out} holds {len(made)} simulated file(s) (e.g. "
+                                 f"{made[0].name}): add --overwrite to replace those written "
+                                 "again, or choose another folder", param_hint="--out")
 
 
 @app.callback(invoke_without_command=True)
@@ -46,6 +52,9 @@ def simulate(
                             "play and creep, sensors, sample rates of three lab-like rigs; "
                             "frictionfit.simulation.rigs)."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
+    overwrite: bool = typer.Option(False, help="Replace the simulated recordings of an earlier "
+                                   "run in --out (recordings not simulated are never "
+                                   "replaced)."),
 ) -> None:
     """Write simulated rubbing measurements (35 classes x sessions x measurements-per-class)."""
     if ctx.invoked_subcommand is not None:
@@ -67,7 +76,7 @@ def simulate(
     if unknown:
         typer.echo(f"error: unknown class(es) {unknown}; known: {', '.join(CLASSES)}", err=True)
         raise typer.Exit(2)
-    _folder(out)
+    _folder(out, overwrite)
     total = sessions * len(labels) * measurements_per_class
     with Progress(disable=not progress, transient=True) as bar:
         task = bar.add_task("simulating measurements", total=total)
@@ -85,10 +94,12 @@ def gestures(
     people: int = typer.Option(5, min=1, help="Number of people."),
     repetitions: int = typer.Option(16, min=1, help="Repetitions of each gesture per person."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
+    overwrite: bool = typer.Option(False, help="Replace the gesture files of an earlier run in "
+                                   "--out."),
 ) -> None:
     """Write simulated touch gestures: people x 7 gestures x repetitions."""
     from frictionfit.simulation.gestures import simulate_gestures
 
-    _folder(out)
+    _folder(out, overwrite, "*.npz")
     paths = simulate_gestures(out, seed, people, repetitions, progress=progress)
     typer.echo(f"wrote {len(paths)} synthetic gestures to {out}")

@@ -145,7 +145,8 @@ def _fit_member(model, batch: Batch, u_start, how: MemberSettings, solve: Solver
         Status.NONFINITE if nonfinite[i] and t_mask[i].sum() >= 3 * len(free)
         else _status(code[i], status_of(len(free), code[i] == Status.CONVERGED, u[i],
                                         stats["chi2"][i], stats["cond"][i], t_mask[i],
-                                        saturated=batch.saturated[i]))
+                                        saturated=batch.saturated[i],
+                                        flags=stats["flags"][i]))
         for i in range(u.shape[0])], dtype=np.int64)
     for i in np.flatnonzero(status == Status.INSUFFICIENT_DATA):  # no fit: no numbers
         stats["values"][i] = {k: np.nan for k in stats["values"][i]}

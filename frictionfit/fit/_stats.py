@@ -235,12 +235,19 @@ def choose(bic: pd.DataFrame) -> list[str]:
     return chosen
 
 
+#: Parameters that set the force's scale: one at a bound of its range is no measurement
+#: (:attr:`Status.AT_BOUND`), unlike an effect's size at its "absent" bound.
+SCALE_PARAMS = ("k", "f_kin")
+
+
 def status_of(n_free: int, converged: bool, u, chi2: float, cond: float, mask,
-              saturated: bool = False) -> Status:
+              saturated: bool = False, flags: dict | None = None) -> Status:
     """The Status of one trial from its solver outcome and statistics.
 
     ``saturated``: the channel was clipped (some samples censored); that outranks
-    every solver outcome but too little data and a non-finite result.
+    every solver outcome but too little data and a non-finite result. ``flags``: the
+    trial's parameter flags; one of :data:`SCALE_PARAMS` "at bound" makes a converged fit
+    ``AT_BOUND``.
     """
     if mask.sum() < 3 * n_free:
         return Status.INSUFFICIENT_DATA
@@ -250,6 +257,8 @@ def status_of(n_free: int, converged: bool, u, chi2: float, cond: float, mask,
         return Status.SATURATED
     if not converged:
         return Status.MAX_STEPS
+    if any((flags or {}).get(name) == "at bound" for name in SCALE_PARAMS):
+        return Status.AT_BOUND
     if cond > ILL_CONDITIONED:
         return Status.ILL_CONDITIONED
     return Status.CONVERGED

@@ -704,7 +704,8 @@ def _fit(items, *, model, fix, u0, max_steps, pool_size, progress,
                                            for n in names])
                      for i in range(len(items))])
     status = np.array([status_of(len(free), code[i] == Status.CONVERGED, u[i], stats["chi2"][i],
-                                 cond[i], mask[i], saturated=items[i].clipped > 0)
+                                 cond[i], mask[i], saturated=items[i].clipped > 0,
+                                 flags=stats["flags"][i])
                        for i in range(len(items))])
     return FitResult(
         model=[model.name] * len(items), values=param_table(stats["values"]),
