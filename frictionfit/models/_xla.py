@@ -18,8 +18,8 @@ and shape before it reads a buffer, answering a problem with XLA's error.
 Whether the target is used (:func:`usable`): not where ``FRICTIONFIT_NATIVE=0``, nor where
 the installed jaxlib's FFI header differs from the layout the target reads
 (:func:`frictionfit.models._ffi.layout_problem`: checked at import, a ``RuntimeWarning``
-naming both versions). :func:`on_cpu` then picks, for each platform a program is lowered
-for, the target on the CPU and the pure-JAX twin on any other.
+naming both versions). :func:`on_cpu` then picks the target on the CPU and the pure-JAX
+twin on any other platform.
 """
 
 from __future__ import annotations
@@ -179,12 +179,21 @@ def usable() -> bool:
     return problem is None
 
 
+@cache
+def _cpu_only() -> bool:
+    """Whether JAX runs on the CPU alone in this process (no GPU or TPU backend)."""
+    return jax.default_backend() == "cpu"
+
+
 def on_cpu(native: Callable, pure: Callable) -> Callable:
     """``native`` where a program runs on the CPU and the target is :func:`usable`, else
-    ``pure`` (same arguments and results): :func:`jax.lax.platform_dependent`, so a program
-    lowered for another platform never names the target."""
+    ``pure`` (same arguments and results). Where JAX has another backend than the CPU, the
+    choice is :func:`jax.lax.platform_dependent`'s, made for each platform a program is
+    lowered for (it traces both); where the CPU is JAX's only backend, ``native`` itself."""
     if not usable():
         return pure
+    if _cpu_only():
+        return native
 
     def either(*args):
         return jax.lax.platform_dependent(*args, cpu=native, default=pure)
