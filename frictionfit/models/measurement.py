@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.models import _xla
+from frictionfit.models import _pure, _xla
 from frictionfit.models._forward import channel_values, timing_normal_equations
 from frictionfit.models.family import PARAMS, NamedParameters
 from frictionfit.models.params import Param
@@ -179,9 +179,13 @@ class MeasurementModel(eqx.Module, NamedParameters):
     def channel(self, u: np.ndarray, t: np.ndarray, commands: np.ndarray, signs: np.ndarray,
                 stretch: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """:meth:`predict` (N) at unconstrained ``u (..., p)`` for a batch, NumPy in and out,
-        by the compiled loop (no JAX); ``u`` broadcast over ``t``'s leading axes."""
+        by the compiled loop (no JAX; JAX's scan where ``FRICTIONFIT_NATIVE=0``); ``u``
+        broadcast over ``t``'s leading axes."""
         theta = self._theta(np.asarray(u, dtype=np.float64))
         theta = np.broadcast_to(theta, (*np.shape(t)[:-1], theta.shape[-1]))
+        if not _xla.native_requested():
+            return _pure.channel_values(_channel_fn(self.law, self.stroke_mm, None), theta, t,
+                                        commands, signs, stretch, direction)
         return channel_values(theta, t, commands, signs, stretch, direction,
                               names=self.law_names, stroke_mm=self.stroke_mm)
 
@@ -212,12 +216,22 @@ class MeasurementModel(eqx.Module, NamedParameters):
         """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict -
         y)`` in the ``free`` entries of unconstrained ``u``: :meth:`predict`'s Jacobian
         taken whole by the compiled loop, its products on the host, so no ``(n, p)``
-        Jacobian passes through JAX (the whole fits' step). Not differentiable."""
+        Jacobian passes through JAX (the whole fits' step; ``jacfwd`` of JAX's scan off the
+        CPU, or where the loop's XLA target is off). Not differentiable."""
+        free = tuple(int(j) for j in free)
+        return _xla.on_cpu(partial(self._native_normal, free=free),
+                           partial(_pure.normal_equations, self._theta,
+                                   _channel_fn(self.law, self.stroke_mm, None), free=free))(
+            u, t, commands, signs, _ones_if_none(stretch, commands), direction, y, weight)
+
+    def _native_normal(self, u, t, commands, signs, stretch, direction, y, weight,
+                       free: tuple[int, ...]):
+        """:meth:`normal_equations` by the compiled loop's XLA target."""
         theta = self._theta(u)
         d_theta = jax.jacfwd(self._theta)(u)[:, jnp.asarray(free)]  # du[free] -> dtheta
         rig = any(self.param_names[j] in RIG for j in free)
         cost, ctc, ctr = _xla.normal_equations(
-            theta, t, commands, signs, _ones_if_none(stretch, commands), direction, y, weight,
+            theta, t, commands, signs, stretch, direction, y, weight,
             names=self.law_names, stroke_mm=self.stroke_mm, rig_columns=rig)
         return cost, d_theta.T @ ctc @ d_theta, d_theta.T @ ctr
 
@@ -225,8 +239,13 @@ class MeasurementModel(eqx.Module, NamedParameters):
                                 ) -> tuple[float, np.ndarray, np.ndarray]:
         """``(|r|^2 / 2, J^T J, J^T r)`` of the weighted residual ``r = weight (predict - y)``
         of one channel in each movement's onset shift (s) then log duration factor, at zero
-        (NumPy in and out, by the compiled loop; the movement timing's steps)."""
+        (NumPy in and out, by the compiled loop, or JAX's scan where
+        ``FRICTIONFIT_NATIVE=0``; the movement timing's steps)."""
         theta = self._theta(np.asarray(u, dtype=np.float64))  # NumPy: no JAX dispatch
+        if not _xla.native_requested():
+            return _pure.timing_normal_equations(_channel_fn(self.law, self.stroke_mm, None),
+                                                 theta, t, commands, signs, stretch, direction,
+                                                 y, weight)
         return timing_normal_equations(theta, t, commands, signs, stretch, direction, y, weight,
                                        names=self.law_names, stroke_mm=self.stroke_mm)
 
@@ -279,7 +298,8 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     their tangent, the Jacobian from the compiled loop of :mod:`frictionfit.models._forward`
     (the scan's ``jacfwd`` is bound by XLA's kernel launches); its value comes from that
     loop too (faster than XLA's scan even batched), both through its XLA target
-    (:mod:`frictionfit.models._xla`). A Jacobian of the whole
+    (:mod:`frictionfit.models._xla`; off the CPU, or where that target is off, JAX's scan
+    with the held entries' derivative stopped). A Jacobian of the whole
     residual (``jacfwd``) then evaluates the drive and the simulation once, whatever its
     number of parameters, and a held rig leaves the drive's tangents out of the contact.
     ``t``, ``commands``, ``signs``, ``stretch`` and ``direction`` are data: never
@@ -298,10 +318,11 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
     if varied is None:
         return channel
 
+    mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
+    pure = partial(_pure.held_channel, channel, mask=tuple(mask.tolist()))
     with_jacobian = partial(_xla.jacobian, names=names, stroke_mm=stroke_mm,
                             rig_columns=any(j >= s + m + 1 for j in varied))
     values = partial(_xla.values, names=names, stroke_mm=stroke_mm)
-    mask = np.isin(np.arange(s + m + 1 + len(RIG)), varied)
 
     simulated = jax.custom_jvp(values)
 
@@ -310,7 +331,7 @@ def _channel_fn(law: str, stroke_mm: float, varied: tuple[int, ...] | None):
         value, columns = with_jacobian(*primals)
         return value, columns @ jnp.where(mask, tangents[0], 0.0)
 
-    return simulated
+    return _xla.on_cpu(simulated, pure)
 
 
 def to_unconstrained(model: MeasurementModel, values: Mapping[str, float]) -> np.ndarray:
