@@ -343,10 +343,9 @@ def accuracy_at_coverage(confidence, correct, coverage: float = 0.9) -> float:
 def plot_reliability(confidence, correct, path, title: str = "", n_bins: int = 15) -> None:
     """PNG: the reliability diagram (accuracy against confidence per bin, with counts) and
     the accuracy against coverage."""
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("The reliability diagram")
 
     table = reliability_table(confidence, correct, n_bins)
     curve = coverage_curve(confidence, correct)

@@ -366,10 +366,9 @@ def _evaluation_files(ev, title: str, confusion: Path | None, predictions: Path 
 
 
 def _plot_confusion(matrix, path: Path, title: str) -> None:
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("The confusion matrix PNG")
     from sklearn.metrics import ConfusionMatrixDisplay
 
     n = len(matrix)
