@@ -22,8 +22,8 @@ PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants
 #: Metadata columns written beside the features / predictions when present.
 GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
 #: The feature set of each dataset kind when ``--features`` is not given. Rubbing
-#: recordings: the measured quantities with the fitted law, the most accurate and best
-#: calibrated set (lab stand-in, leave-one-session-out: docs/results.md).
+#: recordings: the quantities read off the force with the fitted law (see docs/results.md
+#: for how the sets compare).
 DEFAULT_FEATURES = {"recordings": "physical,fitted", "fabricslide": "sliding",
                     "gesture": "gesture"}
 #: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
