@@ -26,7 +26,7 @@ from frictionfit.simulation.trials import simulate_trials
 
 __all__ = ["dask_speedup", "run"]
 
-#: The family member timed: the issue's default scene (stick-slip + one relaxation branch).
+#: The family member timed: the default scene (stick-slip + one relaxation branch).
 MODEL = "relaxation"
 
 
