@@ -12,7 +12,7 @@ quarters or more of the recordings, so their scores are sized for the final pipe
 Holding out whole sessions instead (``split="groups"``) trains each inner pipeline on
 fewer days than the final one, and its probabilities come out too flat. With
 ``n_draws > 0`` and a feature set that can draw its rows (``transform_draws``: a
-bootstrap over a recording's motions, values that could not be measured drawn from the
+bootstrap over a recording's motions, values missing from a recording drawn from the
 training values), the classifier's probabilities are averaged over the draws before
 calibration, at training and prediction alike: a damaged recording, or one whose
 motions disagree, gets a flatter distribution.
@@ -166,8 +166,8 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
     n_draws : int, default 32
         Draws per recording when the feature set can draw them (one row is used where
         it cannot); 0: the feature rows themselves (point estimates). With draws, a
-        damaged recording's top probability drops below its intact twin's far more
-        often (see ``docs/decisions.md``), at no cost in accuracy on the lab stand-in.
+        damaged recording (missing samples, a motion cut short) gets a flatter
+        distribution than its intact twin.
     seed : int, default 0
 
     Attributes
@@ -197,8 +197,7 @@ class CalibratedPipeline(ClassifierMixin, BaseEstimator):
             raise ValueError(f"unknown split {self.split!r}; choose from {list(SPLITS)}")
         with warnings.catch_warnings():
             # libsvm's Platt scaling with pairwise coupling (SVC(probability=True)) ranks
-            # correct calls far better than temperature-scaled decision values on the lab
-            # stand-in (accuracy on the 90 % most confident 0.976 vs 0.937); scikit-learn
+            # correct calls better than temperature-scaled decision values; scikit-learn
             # 1.9 deprecates the flag in favour of CalibratedClassifierCV, which has no
             # pairwise coupling.
             warnings.filterwarnings("ignore", "The `probability` parameter was deprecated",
@@ -343,10 +342,9 @@ def accuracy_at_coverage(confidence, correct, coverage: float = 0.9) -> float:
 def plot_reliability(confidence, correct, path, title: str = "", n_bins: int = 15) -> None:
     """PNG: the reliability diagram (accuracy against confidence per bin, with counts) and
     the accuracy against coverage."""
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("The reliability diagram")
 
     table = reliability_table(confidence, correct, n_bins)
     curve = coverage_curve(confidence, correct)

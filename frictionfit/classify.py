@@ -154,12 +154,9 @@ def projection_for(recordings: Sequence[Recording], project: str | None = "auto"
     """The projection ``make_pipeline`` gets; ``"auto"``: LDA when the data span several sessions.
 
     Recordings made on several days carry the day drift as within-class scatter,
-    which the LDA projection learns to discount. On the lab stand-in (sessions 1-3,
-    leave-one-session-out, RBF SVM) it lifts physical features from 0.762 to 0.940
-    and hand-crafted ones from 0.850 to 0.898. Without sessions (FabricSlide slides,
-    touch gestures) it is left out: on FabricSlide (measured with plain LDA) it
-    lowers physical features from 0.898 to 0.809 across pressures, because the
-    within-class scatter of the training pressures does not describe a new pressure.
+    which the LDA projection learns to discount. Without sessions (FabricSlide slides,
+    touch gestures) it is left out: the within-class scatter of the training pressures
+    does not describe a new pressure.
     """
     if project != "auto":
         if project not in PROJECTIONS:

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from frictionfit._optional import require
 from frictionfit.errors import FitError
 from frictionfit.fit import FitResult, Trials, fit_trials
 from frictionfit.fit.result import concat_results, take_trials
@@ -64,8 +65,7 @@ def partition(n_trials: int, n_chunks: int, groups=None) -> list[slice]:
 
 def _connect(scheduler):
     """``(client, owned)``: the given Client, or a new one on the address (owned, to close)."""
-    from distributed import Client
-
+    Client = require("distributed", "A fit on a Dask cluster").Client
     if isinstance(scheduler, Client):
         return scheduler, False
     if not isinstance(scheduler, str):

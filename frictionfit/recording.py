@@ -6,7 +6,7 @@ channel. The JSON sidecar holds ``sample_rate_hz``, ``channels`` (name, unit),
 "target": "p2"}``), ``metadata`` (``label``, ``material``, ``session``, ..., and what the
 lab knows about its rig: :data:`RIG_KEYS`, read as :attr:`Recording.rig`)
 and ``truth`` (generating parameters of simulated data). A recording made with
-an actuator may hold ``motor_positions``, the actuator's measured positions at
+an actuator may hold ``motor_positions``, the positions the actuator reported at
 the times they were read (see :meth:`Recording.motor_positions`). Unknown keys
 are kept and written back. Every loader and the recorder produce a :class:`Recording`;
 nothing else in frictionfit parses files.
@@ -346,7 +346,7 @@ class Recording:
         return mask
 
     def motor_positions(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The actuator's measured positions, or None when the recording holds none.
+        """The positions the actuator reported, or None when the recording holds none.
 
         They are read at their own, irregular times, slower than the samples.
 

@@ -135,7 +135,7 @@ P.groupby("fabric")[[x_name, y_name, "sliding:stick_slip_amplitude [1]"]].median
 # FFT magnitudes, resampled to 32 points, incremental PCA to D components fitted on the
 # training half, distance-weighted 10-NN; stratified random half splits of repetitions 0+1
 # (the library's default `norm="global"` reading of the authors' code). Three seeds here;
-# the issue's reference is ~0.86 (D=3) / ~0.90 (D=7) over five.
+# the published pipeline's reference is ~0.86 (D=3) / ~0.90 (D=7) over five.
 
 # %%
 labels = meta["fabric"].to_numpy()

@@ -76,6 +76,13 @@ def test_write_report_files(tmp_path):
     assert paths["plot"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_without_matplotlib_the_report_is_written_without_its_plot(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # the core install: no [plots]
+    paths = write_report(merge([FIT]), tmp_path)
+    assert sorted(paths) == ["json", "markdown"] and paths["markdown"].exists()
+    assert not (tmp_path / "speed_vs_error.png").exists()
+
+
 def test_failed_stage_is_listed_not_merged():
     failed = {"stage": "uncertainty", "error": "ImportError: nope", "summary": {}}
     bench = merge([FIT, failed])

@@ -10,7 +10,7 @@ and never JAX, so a recorder starts fast and runs beside a fit.
 - :mod:`~frictionfit.acquisition.dynamixel`, :mod:`~frictionfit.acquisition.actuator`:
   Dynamixel Protocol 2.0 codec, the actuator interface, a simulated gripper.
 - :mod:`~frictionfit.acquisition.protocol`: the rubbing protocol's schedule, and the
-  actuator's measured position read between its commands.
+  actuator's position, read between its commands.
 """
 
 from frictionfit.acquisition.actuator import Actuator as Actuator

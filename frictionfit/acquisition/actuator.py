@@ -12,10 +12,12 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import serial
 
+from frictionfit._optional import lazy_module
 from frictionfit.acquisition.dynamixel import PING, READ, STATUS, WRITE, Packet, PacketParser
 from frictionfit.errors import AcquisitionError
+
+serial = lazy_module("serial", "The Dynamixel actuator")
 
 __all__ = ["Actuator", "DynamixelActuator", "SimulatedGripper"]
 

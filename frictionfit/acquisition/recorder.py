@@ -27,7 +27,7 @@ from frictionfit.recording import Channel, Event, Recording, recording_paths
 
 __all__ = ["RecordingWriter", "record"]
 
-#: Data reaches the disk at least this often (s); the issue allows losing 1 s.
+#: Data reaches the disk at least this often (s): a crash loses at most this much.
 FLUSH_S = 0.25
 
 

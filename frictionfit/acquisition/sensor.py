@@ -17,8 +17,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import serial
-
+from frictionfit._optional import lazy_module
 from frictionfit.acquisition.frames import (
     FILTER_CUTOFF_HZ,
     SPEED_CODES,
@@ -31,6 +30,8 @@ from frictionfit.acquisition.frames import (
     SerialRequest,
 )
 from frictionfit.errors import AcquisitionError
+
+serial = lazy_module("serial", "The OptoForce sensor")
 
 __all__ = ["OptoForceSensor", "load_sensitivity"]
 

@@ -264,10 +264,9 @@ _LAB_COLUMNS = {"agreement_k": "sessions' agreement, log k (Pearson)",
 
 def plot_speed_vs_error(bench: Mapping, path: Path) -> None:
     """Time per trial (log x) against error, one panel per stage, Pareto front marked."""
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("speed_vs_error.png")
 
     stages = [(n, s) for n, s in bench.get("stages", {}).items() if s.get("points")]
     fig, axes = plt.subplots(1, max(len(stages), 1), figsize=(5.5 * max(len(stages), 1), 4.2),
@@ -296,14 +295,20 @@ def plot_speed_vs_error(bench: Mapping, path: Path) -> None:
 
 
 def write_report(bench: Mapping, out: Path) -> dict[str, Path]:
-    """Write ``bench.json``, ``bench.md`` and ``speed_vs_error.png`` into ``out`` (created)."""
+    """Write ``bench.json``, ``bench.md`` and ``speed_vs_error.png`` into ``out`` (created);
+    without matplotlib (the ``plots`` extra) the PNG is left out of the returned paths."""
+    from frictionfit._optional import MissingExtraError
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"json": out / "bench.json", "markdown": out / "bench.md",
              "plot": out / "speed_vs_error.png"}
     paths["json"].write_text(json.dumps(_clean(bench), indent=2, allow_nan=False) + "\n")
     paths["markdown"].write_text(to_markdown(bench) + "\n")
-    plot_speed_vs_error(bench, paths["plot"])
+    try:
+        plot_speed_vs_error(bench, paths["plot"])
+    except MissingExtraError:
+        del paths["plot"]
     return paths
 
 

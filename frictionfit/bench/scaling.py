@@ -18,6 +18,7 @@ import sys
 
 import numpy as np
 
+from frictionfit._optional import require
 from frictionfit.bench.timing import alternate, machine_info, timed
 from frictionfit.distributed import fit_distributed
 from frictionfit.fit import fit_trials
@@ -25,7 +26,7 @@ from frictionfit.simulation.trials import simulate_trials
 
 __all__ = ["dask_speedup", "run"]
 
-#: The family member timed: the issue's default scene (stick-slip + one relaxation branch).
+#: The family member timed: the default scene (stick-slip + one relaxation branch).
 MODEL = "relaxation"
 
 
@@ -84,7 +85,8 @@ def dask_speedup(n_trials: int = 256, repeats: int = 3, seed: int = 0, scheduler
     ``LocalCluster(n_workers=2, threads_per_worker=1, processes=False)``; the
     summary's ``workers`` says how many workers the ratio was measured with.
     """
-    from distributed import Client, LocalCluster
+    distributed = require("distributed", "The Dask speed-up")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
 
     ts = _trials(n_trials, seed)
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=False,

@@ -63,5 +63,12 @@ app.add_typer(simulate.app, name="simulate",
 
 
 def main() -> None:
-    """Entry point of the console script."""
-    app()
+    """Entry point of the console script; a missing optional dependency ends the command
+    with the ``pip install`` line that brings it (exit code 1)."""
+    from frictionfit._optional import MissingExtraError
+
+    try:
+        app()
+    except MissingExtraError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise SystemExit(1) from None

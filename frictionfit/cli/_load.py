@@ -92,12 +92,28 @@ def make_folder(path: Path, option: str) -> None:
                                  param_hint=option) from None
 
 
+#: The optional module that writes each kind of output file.
+_WRITERS = {".parquet": "pyarrow", ".h5": "h5py", ".hdf5": "h5py", ".png": "matplotlib"}
+
+
+def _check_writer(path: Path, option: str) -> None:
+    """Refuse an output whose writer (an optional dependency) is not installed."""
+    from frictionfit._optional import MissingExtraError, require
+
+    if path.suffix in _WRITERS:
+        try:
+            require(_WRITERS[path.suffix], f"{option} {path.name}")
+        except MissingExtraError as exc:
+            raise typer.BadParameter(str(exc), param_hint=option) from exc
+
+
 def check_writable(path: Path | None, option: str, suffixes: tuple[str, ...] = ()) -> None:
     """Refuse an output path that cannot be written, before any work is done."""
     if path is None:
         return
     if suffixes and path.suffix not in suffixes:
         raise typer.BadParameter(f"{path}: write {' or '.join(suffixes)}", param_hint=option)
+    _check_writer(path, option)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise typer.BadParameter(f"{path}: folder {folder} does not exist", param_hint=option)

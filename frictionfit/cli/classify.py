@@ -32,8 +32,8 @@ _FIGURES = (".png", ".pdf", ".svg")
 #: Metadata columns written beside the features / predictions when present.
 GROUP_COLUMNS = ("person", "session", "repetition", "pressure", "speed", "layers", "material")
 #: The feature set of each dataset kind when ``--features`` is not given. Rubbing
-#: recordings: the measured quantities with the fitted law, the most accurate and best
-#: calibrated set (lab stand-in, leave-one-session-out: docs/results.md).
+#: recordings: the quantities read off the force with the fitted law (see docs/results.md
+#: for how the sets compare).
 DEFAULT_FEATURES = {"recordings": "physical,fitted", "fabricslide": "sliding",
                     "gesture": "gesture"}
 #: ``evaluate --all`` defaults per dataset kind: feature sets, protocols.
@@ -441,10 +441,9 @@ def _evaluation_files(ev, title: str, confusion: Path | None, predictions: Path 
 
 
 def _plot_confusion(matrix, path: Path, title: str) -> None:
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("The confusion matrix PNG")
     from sklearn.metrics import ConfusionMatrixDisplay
 
     n = len(matrix)

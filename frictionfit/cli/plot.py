@@ -28,10 +28,9 @@ def plot(
 ) -> None:
     """Plot every channel against time, phases shaded (movement yellow, relaxation blue),
     missing samples (dropped rows, NaN) hatched red."""
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("frictionfit plot")
 
     from frictionfit.errors import FrictionfitError, RecordingError
     from frictionfit.recording import read_recording, recording_paths

@@ -274,8 +274,8 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
         return self._drawn_where_missing(self._spread(out, rng)[..., self._exposed()], rng)
 
     def _drawn_where_missing(self, draws: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Values that could not be measured, drawn from that feature's training values:
-        what is not measured may be anything seen in training (the training median
+        """Missing values (NaN) drawn from that feature's training values: what the
+        recording does not show may be anything seen in training (the training median
         where no training value exists)."""
         draws = draws.copy()
         for j in range(draws.shape[-1]):

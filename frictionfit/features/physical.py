@@ -1,4 +1,4 @@
-"""Physical features: fitted contact-model parameters and measured contact quantities.
+"""Physical features: fitted contact-model parameters and contact quantities read off the force.
 
 For each non-preparatory motion and force channel of a rubbing measurement:
 
@@ -150,39 +150,29 @@ def _rubbing_only(recordings: Sequence[Recording]) -> None:
 
 
 class PhysicalFeatures(RecordingFeatures):
-    """Fitted contact-model parameters and measured contact quantities per channel.
+    """Fitted contact-model parameters and contact quantities read off the force, per channel.
 
     Parameters
     ----------
     fitted : bool, default False
         Include the fitted quantities (see the module notes). Off by default: they cost
-        minutes of fitting (~5 min for 420 recordings on 2 cores). On the lab stand-in
-        (sessions 1-3, leave-one-session-out, SVM behind the LDA projection) they score
-        0.945 alone (the measured quantities 0.940), and 0.969 with them.
+        a whole-measurement fit per recording.
     measured : bool, default True
-        Include the measured quantities.
+        Include the quantities read off the force per movement phase.
     shape : bool, default True
-        Include the gain-free shape quantities (``slip_ripple``, ``relax_<ms>ms``).
-        On the lab stand-in (sessions 1-3, leave-one-session-out, RBF SVM) they
-        raise accuracy from 0.917 to 0.948 behind the default LDA projection of
-        :func:`frictionfit.classify.make_pipeline`, and lower it from 0.81 to 0.76
-        without it (too many weakly informative directions for an RBF kernel on
-        raw scales).
+        Include the gain-free shape quantities (``slip_ripple``, ``relax_<ms>ms``). They
+        suit the LDA projection of :func:`frictionfit.classify.make_pipeline`; without
+        it they add many weakly informative directions for an RBF kernel on raw scales.
     model : str, default "relaxation2"
         Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``), or
         ``"auto"`` (no static peak, a static peak, or one with damping, by BIC). One law
         for every recording keeps the parameters' meaning (every recording has the same
-        ones); on the lab stand-in (sessions 1-3, 840 channels) both measure the classes
-        alike: their median log ``f_kin`` agree between two sessions at a mean Pearson
-        0.77 (``index_x``) and 0.75 (``thumb_x``) with ``relaxation2``, 0.76 and 0.77 with
-        ``"auto"``; ``k`` at 0.87 / 0.73 and 0.86 / 0.71.
+        ones).
     rig : {"recording", "session"}, default "recording"
         Where the motor's profile is fitted: per recording (its features depend on it
         alone), or once per session: the median over the session's recordings that share
         a batch (64 recordings; a lone recording has its own), so a recording's
-        features then depend on which recordings are featurised with it. On the lab
-        stand-in, leaving one session out, ``"session"`` scored 0.938 alone (0.960 with the
-        measured quantities), against 0.948 (0.969) per recording (results.md).
+        features then depend on which recordings are featurised with it.
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
@@ -197,10 +187,8 @@ class PhysicalFeatures(RecordingFeatures):
         Force channels to use, by name.
     wear : bool, default False
         Fit the kinetic level's ``wear`` over the measurement (the whole fits do by
-        default); held at 0 otherwise. On the lab stand-in a recording's two fingers agree
-        on it but its class does not (Fisher ratio 0.1), and fitting it lowered the
-        leave-one-session-out accuracy on sessions 1-3 (``fitted`` 0.945 -> 0.924,
-        ``physical,fitted`` 0.969 -> 0.962).
+        default); held at 0 otherwise, as it describes the recording more than the
+        material.
     cache : bool, default True
         Cache rows by recording content.
 
@@ -212,9 +200,9 @@ class PhysicalFeatures(RecordingFeatures):
 
     _version = 29  # 29: k and drag per mm of the declared stroke
     _view_params = ("with_stderr",)  # the stderrs are stored either way
-    #: Recordings per batched fit: 64 x 2 rubbing channels keep the pools of 16 refilled
-    #: (blocks of 16 took 10 % longer). With ``rig="session"`` the rig is the
-    #: median over a block's recordings of one session.
+    #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
+    #: refilled. With ``rig="session"`` the rig is the median over a block's recordings of
+    #: one session.
     _block = 64
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
@@ -462,7 +450,8 @@ def _per_stroke(name: str) -> str:
 
 class FittedFeatures(PhysicalFeatures):
     """The fitted contact-law parameters alone (:class:`PhysicalFeatures` with
-    ``fitted=True, measured=False``): every feature a physical property of the contact."""
+    ``fitted=True`` and ``measured=False``): every feature a physical property of the
+    contact."""
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
                  model: str = "relaxation2", rig: str = "recording",

@@ -34,10 +34,9 @@ def plot_fit(result: FitResult, i: int, t, y, path, title: str | None = None) ->
     Path
         The file written.
     """
-    import matplotlib
+    from frictionfit._optional import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("plot_fit")
 
     t = np.asarray(t, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)

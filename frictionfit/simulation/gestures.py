@@ -1,6 +1,6 @@
 """SYNTHETIC touch gestures on a textile pressure-matrix skin, for development and tests.
 
-Not measured data: every file this module writes says ``"synthetic": true`` in its
+Not recorded data: every file this module writes says ``"synthetic": true`` in its
 metadata. The sensor is a 20 x 20 taxel matrix at 1 cm pitch read at 50 frames/s;
 one gesture is a 3-s window (150 frames).
 

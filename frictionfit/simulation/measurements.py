@@ -292,7 +292,7 @@ def _channels(plan: dict, force: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _sensor(plan: dict, clean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Offsets, drift, AR(1) noise, 50 Hz pickup and quantisation on top of ``clean`` (n, 4).
 
-    Returns the measured signals and their noise-free level (clean + offsets + drift), N.
+    Returns the sensor's signals and their noise-free level (clean + offsets + drift), N.
     """
     s, rng = plan["session"], plan["rng"]
     t = np.arange(clean.shape[0]) / RATE_HZ

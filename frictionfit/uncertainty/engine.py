@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from emcee.backends import HDFBackend
 
+from frictionfit._optional import require
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult, Trials
@@ -405,6 +406,7 @@ def _sample_emcee(model: ContactModel, rows: np.ndarray, sub: tuple, mode, cov,
     covs = covs * jac[:, :, None] * jac[:, None, :]
     backends = None
     if how.chains_path is not None:
+        require("h5py", "chains_path (emcee's HDF5 chains)")
         backends = [HDFBackend(str(how.chains_path), name=f"trial_{i}") for i in rows]
     workers = available_cores()
     with ThreadPoolExecutor(workers) as pool:

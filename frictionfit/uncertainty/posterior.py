@@ -172,7 +172,9 @@ def to_arviz(post: Posterior, i: int = 0):
         raise ValueError(f"trial {i} has no emcee chain (method {post.method[i]!r})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)  # arviz announces its refactor
-        import arviz as az
+        from frictionfit._optional import require
+
+        az = require("arviz", "to_arviz")
     model = _member(post.model[i])
     # emcee chains are (step, walker, p); arviz wants (chain=walker, draw=step).
     draws = {p.name: np.asarray(p.to_physical(chain.samples[:, :, j].T))
@@ -182,11 +184,10 @@ def to_arviz(post: Posterior, i: int = 0):
 
 def corner_plot(post: Posterior, i: int, path) -> None:
     """Write a ``corner`` plot (PNG) of trial ``i``'s emcee posterior, physical units."""
-    import corner
-    import matplotlib
+    from frictionfit._optional import pyplot, require
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    corner = require("corner", "corner_plot")
+    plt = pyplot("corner_plot")
 
     draws = post.samples(i)
     draws = draws.loc[:, draws.nunique() > 1]  # parameters held fixed have no range to plot
