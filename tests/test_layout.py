@@ -55,10 +55,12 @@ def test_entry_points_import_from_the_package_lazily():
 def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
     # scipy.stats (which emcee imports) takes ~0.7 s of every process that fits
     assert _python(
-        "import sys, tempfile; from typer.testing import CliRunner;"
+        "import sys, tempfile, numpy as np; from typer.testing import CliRunner;"
         "from frictionfit.cli import app; import frictionfit.fit.measurement;"
-        "r = CliRunner().invoke(app, ['fit', tempfile.mkdtemp(), '--out',"
-        "                             tempfile.mkdtemp() + '/fits.csv']);"
+        "from frictionfit import Recording, write_recording; d = tempfile.mkdtemp();"
+        "write_recording(Recording.from_arrays(np.ones((3000, 2)), 1000.0,"
+        "                ['thumb_x', 'index_x']), d + '/dead.csv');"  # dead channels: no fit
+        "r = CliRunner().invoke(app, ['fit', d, '--out', tempfile.mkdtemp() + '/fits.csv']);"
         "assert 'no recording could be fitted' in r.output, r.output;"
         "print('emcee' in sys.modules, 'scipy.stats' in sys.modules)").split() == ["False", "False"]
 
