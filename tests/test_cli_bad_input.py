@@ -433,10 +433,12 @@ def test_long_commands_say_each_stage_off_a_terminal(lab, tmp_path):
     assert "features (physical) of 3 recordings: done in " in result.output
 
 
-def test_the_readme_states_the_rules_the_code_applies():
+def test_the_guide_states_the_rules_the_code_applies():
     from frictionfit import recording
 
-    text = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text().split())
+    root = Path(__file__).resolve().parents[1]
+    text = " ".join((root / "docs" / "guide.md").read_text().split())
+    assert "docs/guide.md" in (root / "README.md").read_text()
     assert "rate 0.5-2 % off the time stamps' (`rate_off`" in text
     assert (recording.RATE_NOTE, recording.RATE_TOLERANCE) == (0.005, 0.02)
     assert "rate_off" in recording.INFORMATIONAL
