@@ -38,7 +38,7 @@ from emcee.backends import HDFBackend
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit import FitResult, Trials
-from frictionfit.fit._noise import noise_estimate
+from frictionfit.fit._noise import ar1_estimate
 from frictionfit.fit._numerics import fd_slope, pad_rows
 from frictionfit.fit._stats import VANISHING
 from frictionfit.models import ContactModel, get_model
@@ -346,8 +346,11 @@ def _with_directions(fit: FitResult, group: TrialGroup, u_hat: np.ndarray) -> Tr
 def _noise(model: ContactModel, trials: Trials, u_hat: np.ndarray, white: bool) -> _Noise:
     """Noise sd (N) and AR(1) coefficient of ``trials`` at the fit ``u_hat``."""
     resid = np.asarray(residuals(model)(u_hat, on_device(trials)))
-    sigma, rho = noise_estimate(resid, trials.mask, model.n_params)
-    return _Noise(sigma, np.zeros_like(rho) if white else rho)
+    if white:  # the likelihood's estimate with rho held at 0
+        n = np.maximum(trials.mask.sum(axis=1), 1)
+        sigma = np.sqrt(np.sum(np.where(trials.mask, resid, 0.0) ** 2, axis=1) / n)
+        return _Noise(sigma, np.zeros_like(sigma))
+    return _Noise(*ar1_estimate(resid, trials.mask))
 
 
 def _sample_group(fit: FitResult, group: TrialGroup, how: SamplerSettings, out: dict) -> None:
