@@ -17,7 +17,6 @@ import frictionfit.fit.measurement as measurement
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.fit import fit_report, measurement_data
-from frictionfit.fit._noise import ar1_estimate
 from frictionfit.fit._numerics import normal_equations, scaled_condition
 from frictionfit.fit._whole_batch import (
     PROFILE_MIN_DROP,
@@ -25,7 +24,7 @@ from frictionfit.fit._whole_batch import (
     _ridges_checked,
     _solver_jtj,
 )
-from frictionfit.fit._whole_problem import normal_fn, residual_fn, residuals_at, stack_items
+from frictionfit.fit._whole_problem import normal_fn, residual_fn, stack_items
 from frictionfit.fit.session import read_session_rigs, write_session_rigs
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
@@ -187,15 +186,13 @@ def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gau
     the log posterior then drops by about ``2 scale``; wider than the data say (4) lifts
     the flags, narrower keeps them (the data's posterior would be wider than the reported
     interval)."""
-    items = [measurement_data(simulated[0], "index_x")]
     model = MeasurementModel("no_peak2")
-    res = fit_recordings(items, model=model, progress=False)
+    res = fit_recordings(simulated[0], channels=["index_x"], model=model, progress=False)
     free = tuple(range(len(model.param_names)))
     u = np.stack(res.u)
-    data = stack_items(items, u)
+    data = stack_items(res.items, u)
     jtj = _solver_jtj(model, free, u, data, np.full((1, len(free), len(free)), np.nan),
                       np.ones(1, bool))  # computed at u
-    sigma, rho = ar1_estimate(residuals_at(model, free, u, data), data.mask)
     # a parameter the data do not inform (its Jacobian column zero: at its bound) has no
     # profile line; whether it is lifted would be decided by the rounding of pinv
     names = [n for j, n in enumerate(model.param_names) if jtj[0, j, j] > 0]
@@ -203,7 +200,7 @@ def test_a_trade_off_is_lifted_only_where_the_posterior_is_no_wider_than_its_gau
     stats = {"flags": [{n: "trades off with k" for n in names if n != "k"} | {"k": "at bound"}],
              "cov": scale * res.cov[0][None], "values": [res.params(0)],
              "stderr": [res.stderrs(0)]}
-    _ridges_checked(model, free, u, stats, data, sigma, rho)
+    _ridges_checked(model, free, u, stats, data, res.noise_var)
     kept = [n for n, f in stats["flags"][0].items() if f.startswith("trades off")]
     assert stats["flags"][0]["k"] == "at bound"  # other flags untouched
     assert 2 * scale > PROFILE_MIN_DROP if lifted else 2 * scale < PROFILE_MIN_DROP
@@ -544,11 +541,11 @@ def test_fitted_features_follow_the_sklearn_contract():
 
 
 def test_single_motions_refitted_with_the_rig_and_sensor_held(simulated):
-    from frictionfit.fit.measurement import fit_motions
-
-    items = [measurement_data(r, "index_x") for r in simulated[:3]]
-    whole = fit_recordings(items, model="relaxation2", progress=False)
-    motions, item_of, motion_of = fit_motions(items, whole)
+    whole = fit_recordings(simulated[:3], channels=["index_x"], model="relaxation2",
+                           progress=False)
+    motions = whole.per_motion()
+    item_of, motion_of = motions.item_of, motions.motion_of
+    assert motions.ids[0] == f"{simulated[0].name}/index_x#1"
     assert np.bincount(item_of).tolist() == [4, 4, 4]  # the preparatory motion is not refitted
     assert sorted(set(motion_of.tolist())) == [1, 2, 3, 4]
     fitted, true = [], []
@@ -721,3 +718,14 @@ def test_a_soft_material_trapped_by_a_slow_drive_is_freed_by_its_sessions_profil
     assert abs(res.values["k"][0] / truth - 1) < 0.05
     assert res.bic[0] <= trapped.bic[0]
     np.testing.assert_array_equal(res.bic[1:], trapped.bic[1:])  # the others as they were
+
+
+def test_the_old_names_still_work_and_say_they_are_deprecated(simulated):
+    items = [measurement_data(simulated[0], "index_x")]
+    with pytest.warns(DeprecationWarning, match="fit_measurements is deprecated"):
+        old = measurement.fit_measurements(items, model="no_peak2", progress=False)
+    new = fit_recordings(items, model="no_peak2", progress=False)
+    np.testing.assert_array_equal(np.stack(old.u), np.stack(new.u))
+    with pytest.warns(DeprecationWarning, match="fit_motions is deprecated"):
+        motions, item_of, _ = measurement.fit_motions(items, old)
+    np.testing.assert_array_equal(item_of, new.per_motion().item_of)

@@ -29,13 +29,12 @@ AUTO_LAWS = ("no_peak2", "relaxation2", "rich")
 #: Law -> the smaller law whose optimum it is fitted from (with that law's drive): viscous
 #: ``damping`` fitted from the data's guess, or with the others far from their optimum,
 #: falls to its lower bound (a log coordinate runs away from where it acts), so ``rich``
-#: starts from ``relaxation2``'s optimum with the damping at :data:`DAMPING_START`
-#: (docs/decisions.md).
+#: starts from ``relaxation2``'s optimum with the damping at :data:`DAMPING_START`.
 GROWN_FROM = {"rich": "relaxation2"}
 #: Law -> the larger law whose optimum it is fitted from where both are chosen from: the
 #: law without a static peak is ``relaxation2`` at ``f_static_excess = 0``, so it is fitted
 #: only where ``relaxation2``'s peak is not measured (:data:`PEAK_Z`), from that optimum
-#: with the peak's mean share over a stroke moved into the kinetic level (docs/decisions.md).
+#: with the peak's mean share over a stroke moved into the kinetic level.
 SHRUNK_FROM = {"no_peak2": "relaxation2"}
 #: The damping a grown ``rich`` starts from (N s/mm): this fraction of ``f_kin`` over the
 #: movement's mean speed (``stroke_mm / ramp``), a viscous force of ~1 % of the kinetic level.
@@ -72,7 +71,7 @@ def held_of(model: MeasurementModel, fix: Mapping | None,
 #: A fitted static peak this many standard errors above zero rules out the laws without one
 #: for that item, whatever their BIC: the BIC's AR(1) deviance scores the residuals'
 #: innovations, and a missing peak is a smooth misfit that a lag-1 coefficient near 1
-#: absorbs (docs/decisions.md).
+#: absorbs.
 PEAK_Z = 3.0
 
 

@@ -1,6 +1,7 @@
 """lmfit-style statistics of a batch at its optimum, identifiability flags, status, BIC choice.
 
-Covariance ``sigma^2 pinv(J^T J)`` in unconstrained coordinates, mapped to physical
+Covariance ``sigma^2 pinv(J^T J)`` (or the inverse of a given likelihood Hessian) in
+unconstrained coordinates, mapped to physical
 standard errors by the delta method; chi-square, reduced chi-square, and the
 condition number of the column-scaled ``J^T J``.
 
@@ -12,11 +13,8 @@ prewhitened sum of squares (``r_t - rho r_{t-1}``; the first sample of each of t
 residuals are autocorrelated, and the white-noise likelihood would then inflate
 every BIC difference; white residuals give ``rho ~ 0`` and the ordinary BIC. Each
 member's BIC is a likelihood of the same data in the same units, so the
-differences are comparable. (The former rule, ``n_eff log(chi2 / n)`` with a
-per-member ``n_eff = n (1 - rho) / (1 + rho)``, was not: ``n_eff`` multiplied the
-log of a variance in N^2, so ``rho`` falling by 0.002 from stick_slip to relaxation
-(noise sd 0.05 N, ``log(chi2/n) = -6.1``) lowered the bigger member's BIC by ~40,
-more than its parameter penalty: 6 of 32 stick-slip trials went to relaxation.)
+differences are comparable. The likelihood is :mod:`frictionfit.fit._noise`'s, the one
+behind the covariances and the posteriors too.
 
 A parameter is flagged (not reported as a confident number) when it sits on a
 bound, when its standard error is undefined or exceeds its value, or when it is
@@ -67,8 +65,11 @@ def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _covariances(jtj: np.ndarray, redchi: np.ndarray, hessian: np.ndarray | None = None):
     """Per trial (stacked, finite inputs): column scale, condition number of the scaled
     ``J^T J``, variances, correlations and the covariance: ``redchi pinv(J^T J)``, or
-    ``pinv(hessian)`` where the likelihood's Hessian is given."""
-    scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
+    ``pinv(hessian)`` where the likelihood's Hessian is given. The column scale (behind the
+    "singular" flag) is that of ``J^T J`` in the units of the residuals over the noise's
+    variance relative to ``redchi``: ``redchi hessian`` when given."""
+    info = jtj if hessian is None else redchi[:, None, None] * hessian
+    scale = np.sqrt(np.maximum(np.einsum("nii->ni", info), 1e-300))
     cond = scaled_condition(jtj)
     cov = (redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
            if hessian is None else np.linalg.pinv(hessian, rcond=1e-13, hermitian=True))

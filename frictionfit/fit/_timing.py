@@ -29,7 +29,7 @@ SHIFTS_S = np.arange(-8.0, 8.25, 0.5) * 1e-3
 #: Damped Gauss-Newton steps refining every movement's onset and duration together, after
 #: the onset search: the movement time jitters too. The data fix one combination of the
 #: two sharply (the static peak's time) and the other loosely, so a grid search on one then
-#: the other stops on the side of that valley (docs/decisions.md).
+#: the other stops on the side of that valley.
 TIMING_STEPS = 4
 #: Largest change of one movement's onset (s) and log duration in one refining step.
 TIMING_STEP_MAX = (0.002, 0.05)

@@ -18,8 +18,7 @@ data it was fitted to and returns a :class:`Posterior` per trial, by one of
   :func:`~frictionfit.uncertainty.laplace.profile_disagreement`). The fit's
   "stderr > value" flag alone does not send a trial to emcee: bounded parameters
   are Gaussian in their log/logit coordinate, where a wide posterior is fine for
-  Laplace as long as the profile check passes (on 200 simulated ``relaxation``
-  trials that flag was raised in 189 trials; Laplace still covered 70 % / 92 %).
+  Laplace as long as the profile check passes.
 
 The log-posterior (AR(1) Gaussian likelihood, priors from the parameter bounds)
 is described in :mod:`frictionfit.uncertainty._logpost`.
@@ -173,8 +172,7 @@ def put_summary(out: dict, i: int, summary: dict) -> None:
         out[key][i] = value
 
 
-#: Rows of one batched log-posterior call: per row, 256 was the fastest of 32-1024 on
-#: this 2-core CPU (57 us vs 76 us at 512: the batch's state no longer fits the cache).
+#: Rows of one batched log-posterior call (larger batches outgrow the CPU's cache).
 EVAL_CHUNK = 256
 
 
@@ -187,7 +185,7 @@ def _evaluator(model, data: tuple, pool: ThreadPoolExecutor, workers: int,
 
     Every chunk shape up to ``max_rows`` rows is compiled here, before sampling: the
     rows shrink as trials converge, and each new shape would otherwise stall the
-    sampler for ~0.7 s of compilation in the middle of a run.
+    sampler for a compilation in the middle of a run.
     """
     f = logp_rows(model, sampling)
 
