@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,7 +25,9 @@ from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.fit.whole_result import MeasurementFit
 from frictionfit.models import MeasurementModel
 from frictionfit.recording import Recording
-from frictionfit.uncertainty import Posterior, whole_fit_posterior
+
+if TYPE_CHECKING:
+    from frictionfit.uncertainty import Posterior
 
 __all__ = ["WholeFit", "fit_recordings"]
 
@@ -40,7 +43,10 @@ class WholeFit(MeasurementFit):
 
     def posterior(self, method: str = "laplace", **kw) -> Posterior:
         """The posterior of every row (:func:`~frictionfit.uncertainty.whole_fit_posterior`:
-        ``method`` "laplace", "auto" or "emcee"; ``kw``: its sampler settings and seed)."""
+        ``method`` "laplace", "auto" or "emcee"; ``kw``: its sampler settings and seed).
+        The samplers are imported here: a fit alone never loads emcee."""
+        from frictionfit.uncertainty import whole_fit_posterior
+
         return whole_fit_posterior(self, method=method, **kw)
 
     def per_motion(self, *, max_steps: int = 100, pool_size: int = 16,

@@ -45,7 +45,9 @@ def test_entry_points_import_from_the_package_lazily():
     assert _python(
         "import sys, frictionfit; jax_at_import = 'jax' in sys.modules;"
         "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
-        "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))"
+        "from frictionfit import fit_recordings;"
+        "print(jax_at_import, callable(fit_trials) and callable(make_pipeline)"
+        "      and callable(fit_recordings))"
     ).split() == ["False", "True"]
 
 
@@ -53,7 +55,7 @@ def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
     # scipy.stats (which emcee imports) takes ~0.7 s of every process that fits
     assert _python(
         "import sys, tempfile; from typer.testing import CliRunner;"
-        "from frictionfit.cli import app; import frictionfit.fit.measurement;"
+        "from frictionfit.cli import app; import frictionfit.whole_fit;"
         "r = CliRunner().invoke(app, ['fit', tempfile.mkdtemp(), '--out',"
         "                             tempfile.mkdtemp() + '/fits.csv']);"
         "assert 'no recording could be fitted' in r.output, r.output;"
