@@ -114,34 +114,29 @@ def fit_recordings(
         ValueError naming the recording and channel for one that is absent, not in N or
         without signal.
     model : {"auto", "no_peak2", "relaxation2", "rich", ...} or MeasurementModel
-        The contact law (:data:`frictionfit.models.measurement.LAWS`), or a model with its
-        stroke (mm) and priors. ``"auto"``: per row, the first of ``no_peak2``,
-        ``relaxation2``, ``rich`` whose BIC is within 2 of the best (``bic_table`` holds
-        every law's).
+        The law (:data:`frictionfit.models.measurement.LAWS`), or a model with its stroke
+        (mm) and priors. ``"auto"``: per row the first of ``no_peak2``, ``relaxation2``,
+        ``rich`` whose BIC is within 2 of the best (every law's in ``bic_table``).
     solver : BatchedLevenbergMarquardt
         The final passes' solver and tolerances (``ftol``, ``rtol``, ``atol``); a first pass
         on merged blocks runs at ten times its ``ftol`` and ``rtol``, a fit nothing
         polishes at a tenth.
     rig : "recording", "session" or {session: SessionRig}
         ``"recording"``: the motor's timing fitted per recording and channel (a fit whose
-        movement duration stands out of its session's, five or more fits, is fitted again
-        from their median profile, the better BIC kept, unless ``refit_rig_outliers`` is
-        False). ``"session"``: the motor's profile held at the median of each session's
-        fits and fitted again, the profiles' spread carried into the standard errors (the
-        profiles in ``session_rigs``). A mapping: profiles estimated before.
+        movement duration stands out of its session's is fitted again from their median
+        profile, the better BIC kept, unless ``refit_rig_outliers`` is False).
+        ``"session"``: the motor's profile held at each session's median and fitted again,
+        its spread carried into the stderrs (``session_rigs``). A mapping: earlier profiles.
     timing : {"movement", "rig"}
-        ``"movement"``: each movement's own latency and duration (the motor's reads where
-        the recording has them, else found from the force at a first optimum);
-        ``"rig"``: one latency and duration for all.
+        ``"movement"``: each movement's own latency and duration (the motor's reads, else
+        found from the force at a first optimum); ``"rig"``: one for all.
     fix : mapping, optional
-        Name -> physical value (one, or one per row) held fixed (``"auto"``: in the laws
-        that have the parameter).
+        Name -> physical value (one, or one per row) held (``"auto"``: in the laws that
+        have it).
     u0 : ndarray, optional
-        Unconstrained starting points of the law fitted from the data (default: the data's
-        guess).
+        Unconstrained start of the law fitted from the data (default: the data's guess).
     decimate, skip_motions : int
-        Samples per block while the finger moves; motions simulated but not fitted (the
-        first sets the contact's state).
+        Samples per block while the finger moves; motions simulated but not fitted.
     max_steps, pool_size : int
         Solver steps per pass and row; rows solved together in one pool.
     progress : bool, optional
@@ -150,10 +145,9 @@ def fit_recordings(
     Returns
     -------
     WholeFit
-        One row per recording and channel, in order: values and standard errors in
-        physical units, lmfit-style statistics, flags, a status each; its data, models and
-        noise, so ``.report()``, ``.predict()``, ``.posterior()``, ``.per_motion()`` and
-        ``.plot()`` need nothing more.
+        One row per recording and channel: values and stderrs in physical units, lmfit-style
+        statistics, flags and a status; its data, models and noise, so ``.report()``,
+        ``.predict()``, ``.posterior()``, ``.per_motion()`` and ``.plot()`` need no more.
 
     Examples
     --------
@@ -163,8 +157,6 @@ def fit_recordings(
     >>> fit = frictionfit.fit_recordings(rec, channels=["index_x"], progress=False)
     >>> fit.ids
     ['s1_paper-2_01/index_x']
-    >>> fit.model[0] in ("measurement-no_peak2", "measurement-relaxation2", "measurement-rich")
-    True
     """
     items = _items(recordings, channels, model, decimate, skip_motions)
     return _as_whole(fit_whole(items, model=model, solver=solver, rig=rig, timing=timing,
