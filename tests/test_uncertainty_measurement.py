@@ -138,6 +138,10 @@ def test_only_whole_fits_are_accepted(fitted):
                           for f in dataclasses.fields(FitResult) if f.init})
     with pytest.raises(FitError, match="needs a whole fit"):
         whole_fit_posterior(stroke)
+    from frictionfit.uncertainty import sample_posterior
+
+    with pytest.raises(FitError, match="a whole fit samples its own"):
+        sample_posterior(res, np.zeros((2, 10)), np.arange(10.0), (0.1, 0.5))
     with pytest.warns(DeprecationWarning, match="measurement_posterior is deprecated"), \
             pytest.raises(FitError, match="1 items but the fit has 2 rows"):
         measurement_posterior(res, items[:1])
@@ -219,18 +223,18 @@ def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
 @pytest.mark.slow
 def test_emcee_agrees_with_laplace_on_the_law_with_a_static_peak():
     """On ``relaxation2`` (a static peak and two relaxation branches: the law ``"auto"``
-    starts from), not only on the peak-less one: where the fit flags none of them, emcee's
-    medians of the well-identified parameters lie within 0.5 Laplace sd of Laplace's, and
-    its sds within a factor 1.5 (the density adds the bounds' priors and is not exactly
-    Gaussian)."""
-    rec, = simulate_measurements([(1, CLASSES[1], 1)], seed=0)
+    starts from), not only on the peak-less one, for a recording whose fit flags nothing:
+    emcee converges, and its medians of the law's five key parameters lie within 0.5
+    Laplace sd of Laplace's, its sds within a factor 1.5 (the density adds the bounds'
+    priors and is not exactly Gaussian). Where a branch is gated (its fraction not told
+    from 0) the chain mixes too slowly to converge in a test's budget."""
+    rec, = simulate_measurements([(1, CLASSES[0], 1)], seed=0)
     res = fit_recordings(rec, channels=["index_x"], model="relaxation2", progress=False)
-    names = [n for n in ("k", "f_kin", "f_static_excess") if n not in res.flags[0]]
-    assert names, res.flags[0]
+    assert res.flags[0] == {}, res.flags[0]
     lap = res.posterior(method="laplace", seed=1)
-    mc = res.posterior(method="emcee", seed=0, max_steps=2000)
+    mc = res.posterior(method="emcee", seed=0, max_steps=4000)
     assert mc.method == ["emcee"] and mc.converged[0], mc.reason
-    for name in names:
+    for name in ("k", "f_kin", "f_static_excess", "relax_frac", "tau"):
         sd = lap.sd[0][name]
         assert abs(mc.quantiles[0][name][2] - lap.quantiles[0][name][2]) < 0.5 * sd, name
         assert 1 / 1.5 < mc.sd[0][name] / sd < 1.5, name

@@ -36,7 +36,7 @@ from emcee.backends import HDFBackend
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
-from frictionfit.fit import FitResult, Trials
+from frictionfit.fit import FitResult, MeasurementFit, Trials
 from frictionfit.fit._noise import ar1_estimate
 from frictionfit.fit._numerics import fd_slope, pad_rows
 from frictionfit.fit._stats import VANISHING
@@ -280,6 +280,9 @@ def sample_posterior(
 def _settings(fit, method, noise, nwalkers, max_steps, check_every, min_tau_multiple, seed,
               chains_path, pilot_steps) -> SamplerSettings:
     """The sampler's settings, checked against the fit."""
+    if isinstance(fit, MeasurementFit):
+        raise FitError("sample_posterior takes per-stroke fits (fit_trials); a whole fit "
+                       "samples its own: fit.posterior(method=...)")
     if getattr(fit, "drive", "events") != "events":
         raise FitError(f"sample_posterior needs a fit with drive='events', not {fit.drive!r}")
     if method not in METHODS:
