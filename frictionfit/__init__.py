@@ -46,6 +46,7 @@ __version__ = "0.1.0"
 #: ``import frictionfit`` (and ``frictionfit --help``) never imports JAX.
 _LAZY = {
     "segment": "frictionfit.segmentation",
+    "fit_recordings": "frictionfit.whole_fit",
     "fit_trials": "frictionfit.fit",
     "fit_report": "frictionfit.fit",
     "sample_posterior": "frictionfit.uncertainty",

@@ -111,7 +111,7 @@ pd.DataFrame(rows).round(4)
 # ## The whole measurement at once
 # A motion fitted alone sees its stiffness only through the start of its loading, where
 # `k` and the movement duration trade off, and it starts from rest though the previous
-# stroke left a held force. `fit_measurements` fits the recording whole instead: one
+# stroke left a held force. `frictionfit.fit_recordings` fits the recording whole instead: one
 # motor (delay, movement duration, acceleration share of a trapezoid velocity profile,
 # and each movement's own latency and duration, taken here from the motor's position
 # reads the recording carries), one sensor (offset, drift, a leak with the
@@ -123,12 +123,12 @@ pd.DataFrame(rows).round(4)
 # halfway through the finger's travel, where the `wear` puts the fitted one.
 
 # %%
-from frictionfit.fit.measurement import fit_measurements, measurement_data
+import frictionfit
 from frictionfit.simulation.measurements import measurement_truth
 
-item = measurement_data(rec, "index_x")
-whole = fit_measurements([item], model="relaxation2")
-print(fit_report(whole, 0))
+whole = frictionfit.fit_recordings(rec, channels=["index_x"], model="relaxation2")
+item = whole.items[0]  # the channel as fitted: blocks, weights, each movement's timing
+print(whole.report(0))
 law = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
 true_whole = {n: measurement_truth(rec, n) for n in law}
 pd.DataFrame({"fitted": whole.values.loc[0, list(law)],
@@ -141,7 +141,7 @@ pd.DataFrame({"fitted": whole.values.loc[0, list(law)],
 # %%
 fig, (ax, axr) = plt.subplots(2, 1, figsize=(10, 4.5), sharex=True,
                               gridspec_kw={"height_ratios": [3, 1]})
-fitted_curve = whole.predict(0, item.t)
+fitted_curve = whole.predict(0)
 ax.plot(item.t[item.mask], item.y[item.mask], ".", ms=1.5, color="0.5", label="data (block means)")
 ax.plot(item.t, fitted_curve, lw=0.9, label="whole-measurement fit")
 ax.axvspan(item.t[0], item.t[item.mask][0], color="0.92", label="simulated, not fitted")
@@ -165,13 +165,14 @@ import dataclasses
 moves = [(tm["move_out"], tm["move_back"]) for tm in rec.truth["motions"][1:]]
 true_onset = np.array([a[0] for pair in moves for a in pair])
 true_duration = np.array([a[1] - a[0] for pair in moves for a in pair])
-without_reads = measurement_data(dataclasses.replace(rec, extra={}), "index_x")
+without_reads = dataclasses.replace(rec, extra={})
 fits = {"motor's reads": whole,
-        "force": fit_measurements([without_reads], model="relaxation2")}
+        "force": frictionfit.fit_recordings(without_reads, channels=["index_x"],
+                                            model="relaxation2")}
 rows, timing = {}, {}
 for source, fit in fits.items():
     v, se = fit.params(0), fit.stderrs(0)
-    commands, _, stretch = (np.asarray(a) for a in fit.drive_input[0])
+    commands, stretch = fit.items[0].commands, fit.items[0].stretch
     onset, duration = (commands + v["delay"])[2:], (stretch * v["ramp"])[2:]  # fitted motions
     rows[f"from the {source}"] = {n: f"{v[n]:.4g} +/- {se[n]:.2g}"
                                   for n in (*law, "accel")}
@@ -196,8 +197,8 @@ here = [r.name for r in day].index(rec.name)
 held = {}
 for source, recs in (("motor's reads", day),
                      ("force", [dataclasses.replace(r, extra={}) for r in day])):
-    fit = fit_measurements([measurement_data(r, "index_x") for r in recs],
-                           model="relaxation2", rig="session")
+    fit = frictionfit.fit_recordings(recs, channels=["index_x"], model="relaxation2",
+                                     rig="session")
     v, se = fit.params(here), fit.stderrs(here)
     held[f"day's profile, timing from the {source}"] = {n: f"{v[n]:.4g} +/- {se[n]:.2g}"
                                                        for n in law}

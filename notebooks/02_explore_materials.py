@@ -23,7 +23,7 @@
 #
 # We simulate one measurement per class in each of two sessions (70 measurements) and fit
 # each one whole on the index finger's x channel as the `fitted` features do
-# (`fit_measurements` with one rig, one sensor and one `relaxation2` contact law per
+# (`frictionfit.fit_recordings` with one rig, one sensor and one `relaxation2` contact law per
 # recording, the kinetic level's wear held at 0), beside the model-free quantities
 # `PhysicalFeatures` measures per phase.
 
@@ -32,8 +32,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+import frictionfit
 from frictionfit.features.physical import PhysicalFeatures
-from frictionfit.fit.measurement import fit_measurements, measurement_data
 from frictionfit.simulation.materials import CLASSES, MATERIALS
 from frictionfit.simulation.measurements import simulate_measurements
 
@@ -43,9 +43,8 @@ recs = simulate_measurements(specs, seed=SEED)
 print(len(recs), "measurements,", len(CLASSES), "classes, e.g.", recs[0].name)
 
 # %%
-items = [measurement_data(r, "index_x") for r in recs]
-whole = fit_measurements(items, model="relaxation2", fix={"wear": 0.0},
-                         max_steps=200)  # as the fitted features fit
+whole = frictionfit.fit_recordings(recs, channels=["index_x"], model="relaxation2",
+                                   fix={"wear": 0.0}, max_steps=200)  # as the features fit
 fits = pd.concat([whole.values, whole.stderr.add_suffix("_stderr")], axis=1)
 measured = PhysicalFeatures(channels=("index_x",), cache=False)  # model-free, per phase
 cols = [c.removeprefix("index_x:").split(" ")[0] for c in measured.get_feature_names_out()]
@@ -98,7 +97,7 @@ fig.tight_layout()
 # for comparison:
 
 # %%
-worn = fit_measurements(items, model="relaxation2", max_steps=200).values
+worn = frictionfit.fit_recordings(whole.items, model="relaxation2", max_steps=200).values
 for name in ("k", "f_kin", "tau"):
     ratio = worn[name] / fits[f"true_{name}"]
     print(f"{name:6s} wear fitted: median fitted/true {ratio.median():.3f}, "

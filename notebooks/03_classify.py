@@ -221,9 +221,8 @@ ax.legend(fontsize=8)
 # its fit, and compare its class probabilities from point values and from 64 draws.
 
 # %%
+import frictionfit
 from frictionfit.features.physical import FittedFeatures
-from frictionfit.fit import fit_report
-from frictionfit.fit.measurement import fit_measurements, measurement_data
 
 labels = [r.metadata["label"] for r in train]
 with_errors = FittedFeatures(with_stderr=True).fit(train)  # the rows the fits above stored
@@ -237,9 +236,10 @@ j = int(np.argmax(doubt))
 doubtful = test[j]
 print(f"{doubtful.name}: median stderr / training spread {doubt[j]:.2f} "
       f"(session 2 median {np.median(doubt):.2f})")
-fit = fit_measurements([measurement_data(doubtful, "index_x")], model="relaxation2",
-                       fix={"wear": 0.0}, max_steps=200, progress=False)  # as the features fit
-print(fit_report(fit, 0))
+fit = frictionfit.fit_recordings(doubtful, channels=["index_x"], model="relaxation2",
+                                 fix={"wear": 0.0}, max_steps=200,
+                                 progress=False)  # as the features fit
+print(fit.report(0))
 
 # %%
 point = CalibratedPipeline(make_pipeline("fitted", probability=True), n_draws=0).fit(

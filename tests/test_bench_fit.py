@@ -7,7 +7,8 @@ import pytest
 
 from frictionfit.bench.fit import numpy_predict, run
 from frictionfit.bench.measurement import COST_TIE, numpy_residual
-from frictionfit.fit.measurement import measurement_data, residual_fn, stack_items
+from frictionfit.fit import measurement_data
+from frictionfit.fit._whole_problem import residual_fn, stack_items
 from frictionfit.models import FAMILY, PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.simulation.measurements import simulate_measurements
@@ -72,7 +73,7 @@ def test_numpy_measurement_residual_equals_jax_residual(law, measurement):
     # drive can end a movement one ulp back, a reversal that resets the law's slip, and
     # NumPy rounds the parameters' exp/tanh differently from XLA (there: a few 1e-9 relative).
     for u in start + 0.3 * np.random.default_rng(0).standard_normal((3, start.size)):
-        data = tuple(jnp.asarray(a[0]) for a in stack_items([measurement], u[None]))
+        data = jax.tree_util.tree_map(jnp.asarray, stack_items([measurement], u[None]).take(0))
         ref = np.asarray(residual(jnp.asarray(u), data))
         twin = numpy_residual(model, u, measurement)
         np.testing.assert_allclose(twin, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))

@@ -20,7 +20,7 @@ from frictionfit.classify import (
 from frictionfit.features import make_features
 from frictionfit.features.fftbins import FFTBinFeatures
 from frictionfit.features.handcrafted import HandcraftedFeatures
-from frictionfit.features.physical import PhysicalFeatures
+from frictionfit.features.physical import FittedFeatures, PhysicalFeatures
 from frictionfit.features.raw import RawSignalFeatures
 from tests.test_features_rubbing import hand_built
 
@@ -58,6 +58,32 @@ def test_feature_sets_clone_and_name_their_features_with_units(features):
     assert all(re.fullmatch(r"\w+:\w+(\.\d+)? \[[^\]]+\]", n) for n in names), names[:3]
     x = features.transform([hand_built(), hand_built("b", scale=(2.0, 1.0, 1.0, 1.0))])
     assert x.shape == (2, len(names)) and np.isfinite(x).all()
+
+
+#: The sets that fit the contact law to each recording (whole fits: simulated measurements).
+FITTED_SETS = [PhysicalFeatures(fitted=True, channels=("index_x", "index_y"), cache=False),
+               FittedFeatures(channels=("index_x", "index_y"), cache=False)]
+
+
+@pytest.fixture(scope="module")
+def measurements():
+    from frictionfit.simulation.measurements import simulate_measurements
+
+    return simulate_measurements([(1, "paper-2", 1), (1, "carpet-1", 1)], seed=4)
+
+
+@pytest.mark.parametrize("features", FITTED_SETS, ids=lambda f: type(f).__name__)
+def test_fitted_feature_sets_clone_and_name_their_features_with_units(features, measurements):
+    twin = clone(features)
+    assert twin.get_params() == features.get_params() and twin is not features
+    names = twin.fit(measurements[:1]).get_feature_names_out()
+    assert len(set(names)) == len(names)
+    assert all(re.fullmatch(r"\w+:\w+(\.\d+)? \[[^\]]+\]", n) for n in names), names[:3]
+    assert any(":fit_k " in n for n in names)  # the fitted law's stiffness is among them
+    x = twin.transform(measurements)
+    assert x.shape == (2, len(names)) and np.isfinite(x).all()
+    # transform does not depend on what else is in the batch (a recording's fit is its own)
+    np.testing.assert_array_equal(twin.transform(measurements[1:]), x[1:])
 
 
 def test_transform_before_fit_is_refused():

@@ -17,12 +17,25 @@ def stick_slip_fit():
 def test_recovers_friction_levels(stick_slip_fit):
     ts, res = stick_slip_fit
     # Friction levels are the well-identified quantities at 30 dB; 5% median is the
-    # issue's bar. k/ramp/slip_length trade off and are checked only for finiteness.
+    # issue's bar.
     for name in ("f_kin", "offset"):
         est = res.values[name].to_numpy()
         rel = np.abs(est - ts.truth[name]) / np.maximum(np.abs(ts.truth[name]), 0.05)
         assert np.median(rel) < 0.05, (name, rel)
     assert np.isfinite(res.values.to_numpy()).all()
+
+
+def test_recovers_stiffness_within_its_stated_uncertainty(stick_slip_fit):
+    ts, res = stick_slip_fit
+    # On a single stroke k trades off with the movement duration (the contact sticks on
+    # the drive's quadratic start): every trial is flagged so, and its error is tens of
+    # per cent on some. What the fit states must still hold: the truth within 3 stderr on
+    # every trial (the stderr an interval despite the flag), and a median error below
+    # 0.2 (the trade-off's scale at 30 dB: about twice the median on these 8).
+    k, se, truth = res.values["k"].to_numpy(), res.stderr["k"].to_numpy(), ts.truth["k"]
+    assert np.all(np.isfinite(se) & (se > 0))
+    assert np.all(np.abs(k - truth) < 3 * se), (k - truth) / se
+    assert np.median(np.abs(k / truth - 1)) < 0.2, k / truth
 
 
 def test_nan_samples_are_masked_not_propagated():

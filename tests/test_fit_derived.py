@@ -7,9 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from frictionfit.fit import measurement_data
 from frictionfit.fit.derived import ONSET_SAMPLES, SLIP_S, _band_rms
-from frictionfit.fit.measurement import fit_measurements, measurement_data
 from frictionfit.simulation.measurements import simulate_measurements
+from frictionfit.whole_fit import fit_recordings
 
 CHANNEL = "index_x"
 
@@ -33,7 +34,7 @@ def _with_shaking(rec, amplitude: float, hz: float = 70.0):
 
 def test_held_force_is_the_step_between_the_data_held_levels(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
-    res = fit_measurements(items, model="relaxation2", progress=False)
+    res = fit_recordings(items, model="relaxation2", progress=False)
     for d, values, derived in zip(items, res.values.to_dict("records"), res.derived,
                                   strict=True):
         held, se = derived["f_held"]
@@ -48,7 +49,7 @@ def test_held_force_is_the_step_between_the_data_held_levels(recordings):
 
 def test_peak_force_is_half_the_data_swing_between_strokes(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
-    res = fit_measurements(items, model="relaxation2", progress=False)
+    res = fit_recordings(items, model="relaxation2", progress=False)
     for d, values, derived in zip(items, res.values.to_dict("records"), res.derived,
                                   strict=True):
         peak, se = derived["f_peak"]
@@ -65,7 +66,7 @@ def test_peak_force_is_half_the_data_swing_between_strokes(recordings):
 
 def test_onset_rate_is_the_data_steepest_rise_in_out_strokes(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
-    res = fit_measurements(items, model="relaxation2", progress=False)
+    res = fit_recordings(items, model="relaxation2", progress=False)
     for d, derived in zip(items, res.derived, strict=True):
         rate, se = derived["onset_rate"]
         y, n = d.direction * d.y, ONSET_SAMPLES  # the grid is 1 ms while the finger moves
@@ -82,7 +83,7 @@ def test_onset_rate_is_the_data_steepest_rise_in_out_strokes(recordings):
 
 def test_static_level_carries_the_covariance_of_its_two_parts(recordings):
     items = [measurement_data(r, CHANNEL) for r in recordings]
-    res = fit_measurements(items, model="relaxation2", progress=False)
+    res = fit_recordings(items, model="relaxation2", progress=False)
     for i in range(res.n_trials):
         v, (static, se) = res.params(i), res.derived[i]["f_static"]
         assert static == pytest.approx(v["f_kin"] + v["f_static_excess"], rel=1e-12)
@@ -109,7 +110,7 @@ def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):
     expected = _band_rms(amplitude * np.sin(2 * np.pi * 70.0 * t))
     clean = [measurement_data(r, CHANNEL) for r in recordings]
     shaken = [measurement_data(_with_shaking(r, amplitude), CHANNEL) for r in recordings]
-    res = fit_measurements(clean + shaken, model="relaxation2", progress=False)
+    res = fit_recordings(clean + shaken, model="relaxation2", progress=False)
     slip = np.array([d["slip_noise"][0] for d in res.derived])
     n = len(recordings)
     assert np.all(slip[:n] < 0.3 * expected)  # the simulator's law has no stick-slip
@@ -120,6 +121,6 @@ def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):
 
 def test_slip_noise_is_nan_without_sample_by_sample_movements(recordings):
     d = measurement_data(recordings[0], CHANNEL, decimate=2)
-    res = fit_measurements([d], model="relaxation2", progress=False, max_steps=30)
+    res = fit_recordings([d], model="relaxation2", progress=False, max_steps=30)
     assert np.isnan(res.derived[0]["slip_noise"][0])
     assert np.isfinite(res.derived[0]["f_held"][0])

@@ -81,14 +81,18 @@ def test_at_least_as_good_as_scipy_lm(four):
     import jax.numpy as jnp
     from scipy.optimize import least_squares
 
+    from frictionfit.fit import initial_guess
     from frictionfit.fit._problem import noise_scale
     from frictionfit.models import get_model
 
     ts, res = four
     model = get_model(EP)
     noise = noise_scale(ts.y, np.isfinite(ts.y))
-    # scipy's LM from our optimum must find no meaningfully lower cost of the same
-    # objective: data residuals and the prior rows (reference twin).
+    start = initial_guess(model, ts.t, ts.y, ts.t_out, ts.t_back, ts.direction)
+    # scipy's LM (MINPACK) from the same start as ours (the data's guess) on the same
+    # objective, data residuals and the prior rows (reference twin): our optimum's cost is
+    # at most scipy's, up to 1e-4 relative (our tolerances for noisy data stop a step
+    # whose cost falls by less than 1e-6 relative; MINPACK's default is 1e-8).
     for i in range(2):
         def r(u, i=i):
             u = jnp.asarray(u)
@@ -97,8 +101,9 @@ def test_at_least_as_good_as_scipy_lm(four):
             return np.concatenate([np.asarray(data),
                                    noise[i] * np.asarray(model.prior_residuals(u))])
 
-        sol = least_squares(r, res.u[i], method="lm")
-        assert np.sum(r(res.u[i]) ** 2) <= 2 * sol.cost * (1 + 1e-5)
+        sol = least_squares(r, start[i], method="lm")
+        assert sol.success
+        assert 0.5 * np.sum(r(res.u[i]) ** 2) <= sol.cost * (1 + 1e-4)
 
 
 def test_hard_cases_never_crash_nor_hide_nan():

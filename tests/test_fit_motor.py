@@ -9,16 +9,17 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import frictionfit.fit.measurement as measurement
+import frictionfit.fit._timing as timing
 from frictionfit.acquisition.actuator import SimulatedGripper
 from frictionfit.cli import app
 from frictionfit.errors import Status
 from frictionfit.features._base import content_key
-from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit.fit import measurement_data
 from frictionfit.fit.measurement_data import _move_signs
 from frictionfit.fit.motor import motor_timing
 from frictionfit.recording import MOTOR_POSITIONS, read_recording, write_recording
 from frictionfit.simulation.measurements import measurement_truth, simulate_measurements
+from frictionfit.whole_fit import fit_recordings
 
 SPECS = [(1, "carpet-1", 1), (2, "paper-2", 1), (1, "cushion-1", 2)]
 
@@ -142,8 +143,8 @@ def test_the_whole_fit_takes_each_movements_timing_from_the_motor(read, monkeypa
     def not_searched(*args, **kwargs):
         raise AssertionError("the force was searched for a timing the motor reported")
 
-    monkeypatch.setattr(measurement, "_movement_timing", not_searched)
-    res = fit_measurements(items, progress=False)
+    monkeypatch.setattr(timing, "_movement_timing", not_searched)
+    res = fit_recordings(items, progress=False)
     for i, (rec, status) in enumerate(zip(read, res.status, strict=True)):
         v, se = res.params(i), res.stderrs(i)
         assert status == Status.CONVERGED
@@ -152,9 +153,9 @@ def test_the_whole_fit_takes_each_movements_timing_from_the_motor(read, monkeypa
         assert abs(v["k"] - truth["k"]) < 3 * se["k"] and v["k"] == pytest.approx(truth["k"],
                                                                                   rel=0.15)
         assert v["f_kin"] == pytest.approx(truth["f_kin"], rel=0.05)
-    for d, drive in zip(items, res.drive_input, strict=True):  # the motor's timing kept
-        np.testing.assert_array_equal(drive[0], d.commands)
-        np.testing.assert_array_equal(drive[2], d.stretch)
+    for d, fitted in zip(items, res.items, strict=True):  # the motor's timing kept
+        np.testing.assert_array_equal(fitted.commands, d.commands)
+        np.testing.assert_array_equal(fitted.stretch, d.stretch)
 
 
 def test_cli_simulates_the_motors_reads(tmp_path):

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from frictionfit.features.physical import FittedFeatures, PhysicalFeatures
+from frictionfit.fit import MeasurementData
 from frictionfit.fit.derived import SLIP_S, _band_rms
 from frictionfit.fit.lateral import LATERAL, fit_lateral
 from frictionfit.fit.lateral import _regressors_fn as regressors
-from frictionfit.fit.measurement import MeasurementData
 from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import to_unconstrained
 from frictionfit.simulation.measurements import simulate_measurements
@@ -127,16 +127,16 @@ def test_a_recordings_fitted_features_do_not_depend_on_what_is_featurised_with_i
 def test_the_features_fits_take_no_second_start_from_their_batch(monkeypatch):
     # a second start from the session's profile is computed over the batch (five or more
     # fits of a session): the row of a recording would then depend on its batch-mates
-    import frictionfit.fit.measurement as measurement
+    import frictionfit.whole_fit as whole_fit
 
     seen = []
-    fit = measurement.fit_measurements
+    fit = whole_fit.fit_recordings
 
     def spy(*args, **kwargs):
         seen.append(kwargs.get("refit_rig_outliers", True))
         return fit(*args, **kwargs)
 
-    monkeypatch.setattr(measurement, "fit_measurements", spy)
+    monkeypatch.setattr(whole_fit, "fit_recordings", spy)
     recs = simulate_measurements([(1, "paper-2", 1)], seed=7)
     FittedFeatures(cache=False).fit_transform(recs)
     assert seen == [False]

@@ -48,7 +48,9 @@ def test_entry_points_import_from_the_package_lazily():
     assert _python(
         "import sys, frictionfit; jax_at_import = 'jax' in sys.modules;"
         "from frictionfit import fit_trials, sample_posterior, segment, make_pipeline;"
-        "print(jax_at_import, callable(fit_trials) and callable(make_pipeline))"
+        "from frictionfit import fit_recordings;"
+        "print(jax_at_import, callable(fit_trials) and callable(make_pipeline)"
+        "      and callable(fit_recordings))"
     ).split() == ["False", "True"]
 
 
@@ -56,7 +58,7 @@ def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
     # scipy.stats (which emcee imports) takes ~0.7 s of every process that fits
     assert _python(
         "import sys, tempfile, numpy as np; from typer.testing import CliRunner;"
-        "from frictionfit.cli import app; import frictionfit.fit.measurement;"
+        "from frictionfit.cli import app; import frictionfit.whole_fit;"
         "from frictionfit import Recording, write_recording; d = tempfile.mkdtemp();"
         "write_recording(Recording.from_arrays(np.ones((3000, 2)), 1000.0,"
         "                ['thumb_x', 'index_x']), d + '/dead.csv');"  # dead channels: no fit

@@ -159,11 +159,9 @@ def test_the_fits_fall_back_to_the_pure_path_where_the_layout_is_refused(tmp_pat
 _WHOLE_FITS = """
 import sys
 import numpy as np
-from frictionfit import read_recording
-from frictionfit.fit.measurement import fit_measurements, measurement_data
+from frictionfit import fit_recordings, read_recording
 recs = [read_recording(p) for p in sys.argv[2:]]
-items = [measurement_data(r, ch) for r in recs for ch in ("index_x", "thumb_x")]
-res = fit_measurements(items, progress=False)
+res = fit_recordings(recs, channels=("index_x", "thumb_x"), progress=False)
 np.savez(sys.argv[1], values=res.values.to_numpy(float), columns=list(res.values.columns),
          model=res.model, bic=res.bic)
 """

@@ -6,7 +6,7 @@ are scored by what a measurement of the material must do without one:
 - converge, with the stiffness ``k`` and the kinetic level ``f_kin`` determined (neither
   flagged);
 - be one law for the whole recording: the spread of ``k`` and ``f_kin`` over its motions,
-  each motion refitted alone (:func:`~frictionfit.fit.measurement.fit_motions`), as
+  each motion refitted alone (the fit's ``per_motion()``), as
   sd / median;
 - measure the material, not the day: the classes' median log values agree between sessions
   (Pearson over the classes two sessions share, mean over the pairs);
@@ -33,7 +33,8 @@ from frictionfit.bench.timing import machine_info
 from frictionfit.datasets.rubbing_lab import load
 from frictionfit.errors import Status
 from frictionfit.features.physical import FITTED_CHANNELS, PhysicalFeatures
-from frictionfit.fit.measurement import fit_measurements, fit_motions, measurement_data
+from frictionfit.fit.measurement_data import measurement_data
+from frictionfit.whole_fit import fit_recordings
 
 __all__ = ["DETERMINED", "FITS", "run"]
 
@@ -79,12 +80,13 @@ def run(path: str | Path, *, quick: bool = False, seed: int = 0,
 
 def _score(items, recordings, channels: Sequence[str], fit_kw: dict,
            measured: pd.DataFrame) -> dict:
-    """Fit ``items`` by ``fit_measurements(**fit_kw)`` twice, the second timed, and score the
+    """Fit ``items`` by ``fit_recordings(**fit_kw)`` twice, the second timed, and score the
     fits (module notes); ``compile_s``: how much longer the first took."""
-    first = fit_measurements(items, **fit_kw, progress=False)
-    fit = fit_measurements(items, **fit_kw)
+    first = fit_recordings(items, **fit_kw, progress=False)
+    fit = fit_recordings(items, **fit_kw)
     compile_s = max(first.wall_s - fit.wall_s, 0.0)
-    motions, item_of, _ = fit_motions(items, fit, progress=None)
+    motions = fit.per_motion(progress=None)
+    item_of = motions.item_of
     table = _per_item(recordings, channels, fit)
     converged = table["status"] == Status.CONVERGED
     determined = converged & ~table[[f"{p}_flagged" for p in DETERMINED]].any(axis=1)

@@ -20,7 +20,7 @@ import numpy as np
 from frictionfit.bench.fit import numpy_contact_force
 from frictionfit.bench.timing import alternate, timed
 from frictionfit.errors import Status
-from frictionfit.fit.measurement import MeasurementData, fit_measurements, measurement_data
+from frictionfit.fit.measurement_data import MeasurementData, measurement_data
 from frictionfit.models import MeasurementModel
 from frictionfit.simulation.materials import CLASSES
 from frictionfit.simulation.measurements import (
@@ -29,6 +29,7 @@ from frictionfit.simulation.measurements import (
     simulate_measurements,
 )
 from frictionfit.simulation.rigs import DEFAULT, SimulatedRig
+from frictionfit.whole_fit import fit_recordings
 
 __all__ = ["COST_TIE", "KEY_PARAMS", "PEER_N", "RECOVERY_N", "numpy_predict", "numpy_residual",
            "recovery"]
@@ -66,10 +67,10 @@ def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
     recs = simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz, rig=rig)
     items = [measurement_data(r, channel) for r in recs]
     start = time.perf_counter()
-    fit_measurements(items, progress=False)
+    fit_recordings(items, progress=False)
     first = time.perf_counter() - start
     start = time.perf_counter()
-    res = fit_measurements(items, progress=False)
+    res = fit_recordings(items, progress=False)
     steady = time.perf_counter() - start
     ok = np.array([Status(int(s)) in (Status.CONVERGED, Status.ILL_CONDITIONED)
                    for s in res.status])
@@ -124,7 +125,7 @@ def _against_peers(items: list, n_numpy: int) -> dict:
     import jax
     from scipy.optimize import least_squares
 
-    from frictionfit.fit.measurement import residual_fn, stack_items
+    from frictionfit.fit._whole_problem import residual_fn, stack_items
     from frictionfit.models.measurement import to_unconstrained
 
     model = MeasurementModel("relaxation2")
@@ -144,8 +145,8 @@ def _against_peers(items: list, n_numpy: int) -> dict:
         return least_squares(lambda u: numpy_residual(model, u, items[i]), u0[i], **lm).x
 
     def ours(rows):
-        return fit_measurements([items[i] for i in rows], model=model, timing="rig",
-                                refit_rig_outliers=False, progress=False).u
+        return fit_recordings([items[i] for i in rows], model=model, timing="rig",
+                              refit_rig_outliers=False, progress=False).u
 
     def cost(u, i):
         return 0.5 * float(np.sum(numpy_residual(model, np.asarray(u), items[i]) ** 2))
@@ -170,8 +171,9 @@ def _against_peers(items: list, n_numpy: int) -> dict:
             "scipy-numpy": against_ours(scipy_numpy, first)}
 
 
-def _row(data: tuple, i: int) -> tuple:
-    return tuple(a[i] for a in data)
+def _row(data, i: int):
+    """Item ``i`` of a stacked batch (:class:`~frictionfit.fit._whole_problem.WholeFitData`)."""
+    return data.take(i)
 
 
 def numpy_predict(model: MeasurementModel, u: np.ndarray, t: np.ndarray, commands: np.ndarray,
@@ -209,7 +211,7 @@ def _finger(v: dict, t, commands, signs, stretch, stroke_mm: float
 
 
 def numpy_residual(model: MeasurementModel, u: np.ndarray, d: MeasurementData) -> np.ndarray:
-    """The residual :func:`~frictionfit.fit.measurement.fit_measurements` minimises, in plain
+    """The residual :func:`~frictionfit.fit_recordings` minimises, in plain
     NumPy: weighted block residuals, then the prior rows scaled by the noise sd (N)."""
     commands, signs, stretch = d.drive
     pred = numpy_predict(model, u, d.t, commands, signs, d.direction, stretch)

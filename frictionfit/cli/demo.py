@@ -72,10 +72,9 @@ def demo(
     and classify them."""
     import numpy as np
 
-    from frictionfit.fit import fit_report
-    from frictionfit.fit.measurement import fit_measurements, measurement_data
     from frictionfit.segmentation import segment
     from frictionfit.simulation.measurements import measurement_truth
+    from frictionfit.whole_fit import fit_recordings
 
     out.mkdir(parents=True, exist_ok=True)
     # the demo's own fits.csv is written again on every run; never a recording or its data
@@ -95,11 +94,9 @@ def demo(
                 worst = max(worst, float(np.max(np.abs(np.subtract(found, true)))))
     typer.echo(f"segmented {n_motions} motions (the preparatory one dropped); largest phase "
                f"boundary error against the simulator's motor: {worst * 1e3:.1f} ms")
-    items = [measurement_data(rec, channel) for rec in recs]
-    result = fit_measurements(items, model=model, progress=False)
-    result.to_frame([f"{d.name}/{d.channel}" for d in items]).to_csv(out / "fits.csv",
-                                                                      index=False)
-    typer.echo("\n" + fit_report(result, 0))
+    result = fit_recordings(recs, channels=[channel], model=model, progress=False)
+    result.to_frame(result.ids).to_csv(out / "fits.csv", index=False)
+    typer.echo("\n" + result.report(0))
     typer.echo(f"\ntruth/fit ({channel}; each recording fitted whole; truth: median over the "
                "fitted motions, f_kin halfway through the travel; the simulator adds damping "
                "and per-movement timing jitter)")

@@ -293,7 +293,7 @@ def _prepared(files: list[Path], strict: bool, prepare):
 
 
 def _rig_option(rig: str, save_rig: Path | None) -> str | dict:
-    """``--rig`` as ``fit_measurements`` takes it: a name, or the session profiles read from a
+    """``--rig`` as ``fit_recordings`` takes it: a name, or the session profiles read from a
     .json file; ``--save-rig`` checked (it needs ``--rig session``)."""
     if save_rig is not None:
         if rig != "session":
@@ -317,9 +317,9 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
                uncertainty: str, output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each (with
     its posterior's quantiles unless ``uncertainty`` is "none")."""
-    from frictionfit.fit import fit_report
-    from frictionfit.fit.measurement import fit_measurements, measurement_data
+    from frictionfit.fit import measurement_data
     from frictionfit.models import MeasurementModel
+    from frictionfit.whole_fit import fit_recordings
 
     if law == "auto" and (priors or stroke_mm != 1.0):
         raise typer.BadParameter("priors and a stroke need one law: choose --model",
@@ -349,7 +349,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     typer.echo(f"fitting {_count(len(items), 'recording channel')} whole, law={law} ...")
     try:
         with stage(f"fitting {_count(len(items), 'recording channel')}"):
-            result = fit_measurements(items, model=model, fix=fixed, rig=rig)
+            result = fit_recordings(items, model=model, fix=fixed, rig=rig)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--fix / --rig") from None
     if output.rigs is not None:
@@ -357,17 +357,15 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
 
         write_session_rigs(result.session_rigs, output.rigs)
         typer.echo(f"{len(result.session_rigs)} session motor profile(s) -> {output.rigs}")
-    ids = [f"{d.name}/{d.channel}" for d in items]
+    ids = result.ids
     frame = result.to_frame(ids)
     frame.insert(1, "problems", problems)
     # where each movement's onset and duration came from: the motor's reads or the force
     frame.insert(2, "timing", ["motor" if d.motor is not None else "force" for d in items])
     if uncertainty != "none":
-        from frictionfit.uncertainty import measurement_posterior
-
         with stage(f"posteriors ({uncertainty}) of {_count(len(items), 'row')}"
                    + (", ~15 s a row" if uncertainty != "laplace" else "")):
-            post = measurement_posterior(result, items, method=uncertainty)
+            post = result.posterior(method=uncertainty)
         frame = frame.merge(post.to_frame(ids), on="trial")
         typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s: {post.verdict()}")
     _write(frame, output.table, "recording channel", result.wall_s)
@@ -375,7 +373,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
         with stage(f"plotting {_count(len(ids), 'row')} into {output.plots}"):
             _plots(result, [(d.t[d.mask], d.y[d.mask]) for d in items], ids, output.plots)
     if output.report:
-        typer.echo(fit_report(result, 0))
+        typer.echo(result.report(0))
 
 
 def _each_channel(rec, names: Sequence[str], strict: bool, take: Callable[[str], Any]

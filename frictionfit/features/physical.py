@@ -4,7 +4,7 @@ For each non-preparatory motion and force channel of a rubbing measurement:
 
 **Fitted** (``fitted=True``): the whole measurement of each force channel along the
 rubbing direction (``thumb_x``, ``index_x``) is fitted at once by
-:func:`frictionfit.fit.measurement.fit_measurements` (rig, sensor and one contact law,
+:func:`frictionfit.fit_recordings` (rig, sensor and one contact law,
 the law's state carried from stroke to stroke; ``decimate`` samples per point while the
 finger moves).
 Kept, in log10 where positive: ``k`` (N/mm of fingertip travel where every recording
@@ -356,7 +356,8 @@ class PhysicalFeatures(RecordingFeatures):
     def _fit_all(self, recordings: Sequence[Recording]) -> list[dict[str, np.ndarray]]:
         """Per recording, channel -> row of fitted features, from one whole-measurement fit
         of every (recording, fitted channel) in one batch (NaN rows where a fit failed)."""
-        from frictionfit.fit.measurement import fit_measurements, measurement_data
+        from frictionfit.fit.measurement_data import measurement_data
+        from frictionfit.whole_fit import fit_recordings
 
         width = len(self._fitted_names())
         fitted = [c for c in self.channels if c in FITTED_CHANNELS]
@@ -373,10 +374,9 @@ class PhysicalFeatures(RecordingFeatures):
             return out
         # no second start from the session's profile of the batch: with rig="recording" a
         # recording's row depends on it alone (and is cached by its content)
-        res = fit_measurements(items, model=self.model, rig=self.rig, max_steps=self.max_steps,
-                               fix=None if self.wear else {"wear": 0.0},
-                               refit_rig_outliers=False,
-                               progress=False)  # the feature set's own bar counts the batches
+        res = fit_recordings(items, model=self.model, rig=self.rig, max_steps=self.max_steps,
+                             fix=None if self.wear else {"wear": 0.0}, refit_rig_outliers=False,
+                             progress=False)  # the feature set's own bar counts the batches
         ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
         if self.accept_max_steps:
             ok.add(Status.MAX_STEPS)
@@ -396,14 +396,14 @@ class PhysicalFeatures(RecordingFeatures):
         """The kept lateral coefficients of ``channel`` and their standard errors, on trial
         ``k`` of the rubbing channels' fit ``res`` (NaN where the channel cannot be read)."""
         from frictionfit.fit.lateral import fit_lateral
-        from frictionfit.fit.measurement import measurement_data
+        from frictionfit.fit.measurement_data import measurement_data
 
         try:
             d = measurement_data(rec, channel, decimate=self.decimate)
         except ValueError as exc:
             warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=4)
             return np.full(len(self._lateral_names()), np.nan)
-        got = fit_lateral(res.member(k), res.u[k], res.drive_input[k], float(res.direction[k]),
+        got = fit_lateral(res.member(k), res.u[k], res.items[k].drive, float(res.direction[k]),
                           d)
         noise, se = got["slip_noise"]
         noise = max(noise, SLIP_FLOOR_N) if np.isfinite(noise) else noise

@@ -228,9 +228,8 @@ def fit_trials(
         The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
         Host threads, a pool each (default: the cores this process may use; results do
-        not depend on it, bit for bit). ``"lm"`` only: the optimistix solvers run in one
-        thread, since their batched QR (jaxlib's LAPACK kernel, which splits a batch over
-        XLA's thread pool and waits for the parts) deadlocked when two threads ran it.
+        not depend on it, bit for bit). ``"lm"`` only: the optimistix solvers' batched QR
+        (jaxlib's LAPACK kernel) is not safe in two threads at once.
 
     Returns
     -------

@@ -12,11 +12,9 @@ __all__ = ["SATURATED_RUN", "direction_of", "initial_guess", "multi_starts", "sa
            "trial_keys"]
 
 #: Consecutive samples exactly at a trial's extreme value that mark it saturated (clipped).
-#: Noisy analogue samples never repeat exactly; quantised ones do, but on the shared
-#: rubbing-lab recordings (1-2 mN ADC steps, AR(1) noise; 16588 windows of 2000
-#: samples) the longest run at a window's extreme was 5 samples (10 windows; 40 had
-#: 4, 453 had 3: ~4-10x fewer per extra sample), except stuck-transmission faults
-#: (60 samples and more), which are flagged too.
+#: Noisy analogue samples never repeat exactly; quantised ones (ADC steps of a few mN) do,
+#: in runs far shorter than this, while stuck-transmission faults run much longer and
+#: are flagged too.
 SATURATED_RUN = 8
 
 

@@ -1,24 +1,42 @@
-"""The AR(1) noise model of residuals: its lag-1 coefficient and its likelihood.
+"""The one noise model of fit residuals: Gaussian AR(1), its estimate and its likelihood.
 
-Residuals ``r`` (N) follow ``r_t = rho r_{t-1} + e_t``; a sample whose predecessor
-is missing starts a new stationary run (it enters with the marginal variance).
-The fit profiles ``rho`` and the innovation variance out of the likelihood
-(:func:`ar1_deviance`, NumPy); the posterior holds both at their least-squares
-estimates (:func:`noise_estimate`) and evaluates :func:`ar1_log_likelihood` (JAX).
+Residuals ``r`` (a stroke's samples, or a whole fit's weighted block residuals) follow
+``r_t = rho r_{t-1} + e_t``, stationary with marginal sd ``sigma``; a sample whose
+predecessor is masked starts a new run (it enters with the marginal variance). The noise
+is estimated once, at a fit's optimum, by :func:`ar1_estimate` (its maximum likelihood),
+and every use of it evaluates this model at that estimate:
+
+- the law choice: :func:`ar1_deviance`, ``-2`` :func:`ar1_log_likelihood` there (constant
+  dropped), behind AIC and BIC;
+- a stroke's posterior (Laplace and emcee): :func:`ar1_log_likelihood` plus the log-priors,
+  its residual for Gauss-Newton :func:`ar1_whiten`;
+- a whole fit's covariance and posterior (Laplace and emcee): the AR(1) likelihood in its
+  long-run form, independent residuals of variance :func:`long_run_variance`,
+  ``sigma^2 (1 + rho) / (1 - rho)`` (the variance of a mean of the noise). Its maximum is
+  the least-squares optimum the fit reports, and its curvature is the AR(1) covariance of
+  that estimate where the model's Jacobian varies slowly over the noise's correlation
+  length. (The whitened likelihood's maximum is another estimate, generalised least squares,
+  which the whole fit does not compute.)
+
+The functions take NumPy or JAX arrays (the trials along the leading axes, the samples
+along the last) and return the same kind.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["RHO_MAX", "RHO_POSTERIOR", "ar1_deviance", "ar1_innovations",
-           "ar1_log_likelihood", "lag1_rho", "noise_estimate"]
+__all__ = ["RHO_MAX", "ar1_deviance", "ar1_estimate", "ar1_log_likelihood", "ar1_whiten",
+           "lag1_rho", "long_run_variance"]
 
-#: Bound on |rho| in the fit's deviance (keeps ``log(1 - rho^2)`` finite).
+#: Bound on |rho| (keeps ``log(1 - rho^2)`` finite).
 RHO_MAX = 0.99
-#: Range of rho held fixed in the posterior (anticorrelated noise is not expected).
-RHO_POSTERIOR = (0.0, 0.95)
+
+
+def _xp(a):
+    return jnp if isinstance(a, jax.Array) else np
 
 
 def lag1_rho(resid: np.ndarray, mask: np.ndarray, over_pairs: bool = True) -> np.ndarray:
@@ -36,50 +54,61 @@ def lag1_rho(resid: np.ndarray, mask: np.ndarray, over_pairs: bool = True) -> np
     return cross / np.maximum(ss, 1e-300)
 
 
-def ar1_deviance(resid, mask) -> np.ndarray:
-    """``-2 log L`` (constant dropped) of residuals under Gaussian AR(1) noise, per trial.
-
-    ``resid`` (n_trials, n_samples), zero where ``mask`` is False. The coefficient
-    is the lag-1 least-squares estimate over pairs of finite neighbours, clipped to
-    ``[-RHO_MAX, RHO_MAX]``; each contiguous run of finite samples starts a new
-    stationary segment (a gap of missing samples breaks the recurrence).
-    """
+def ar1_estimate(resid: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Maximum-likelihood marginal sd ``sigma`` (units of ``resid``) and lag-1 coefficient
+    ``rho`` per trial of ``resid (n_trials, n_samples)`` (NumPy): ``rho`` the least-squares
+    estimate over pairs of masked neighbours, clipped to ``[-RHO_MAX, RHO_MAX]``; ``sigma``
+    the likelihood's maximum given ``rho`` (the innovations' mean square over
+    ``1 - rho^2``)."""
     resid = np.where(mask, resid, 0.0)
-    n = mask.sum(axis=1).astype(np.float64)
-    pair = mask[:, 1:] & mask[:, :-1]
-    prev, cur = resid[:, :-1] * pair, resid[:, 1:] * pair
     rho = np.clip(np.nan_to_num(lag1_rho(resid, mask)), -RHO_MAX, RHO_MAX)
-    starts = mask.copy()
-    starts[:, 1:] &= ~mask[:, :-1]  # first finite sample of each run
-    lead = (1 - rho**2) * np.sum(np.where(starts, resid, 0.0) ** 2, axis=1)
-    sse = lead + np.sum((cur - rho[:, None] * prev) ** 2, axis=1)
-    g = starts.sum(axis=1)
-    return (n * np.log(np.maximum(sse / np.maximum(n, 1.0), 1e-300))
-            - g * np.log1p(-rho**2))
+    n = np.maximum(mask.sum(axis=1), 1)
+    unit = ar1_whiten(resid, mask, np.ones_like(rho), rho)  # innovations over sqrt(1-rho^2)
+    var = np.maximum(np.sum(unit**2, axis=1) / n, 1e-300)
+    return np.sqrt(var), rho
 
 
-def noise_estimate(resid: np.ndarray, mask: np.ndarray, n_params: int):
-    """Marginal noise sd (N) and lag-1 autocorrelation (clipped to RHO_POSTERIOR) per
-    trial, from least-squares residuals."""
-    n = mask.sum(axis=1)
-    ss = np.sum(np.where(mask, resid, 0.0) ** 2, axis=1)
-    sigma = np.sqrt(ss / np.maximum(n - n_params, 1))
-    return sigma, np.clip(lag1_rho(resid, mask, over_pairs=False), *RHO_POSTERIOR)
-
-
-def ar1_innovations(resid, mask, rho):
-    """Innovations ``r_t - rho r_{t-1}`` of one trial's ``resid (n_samples,)`` (JAX) and
-    their variance in units of the marginal one (``1 - rho^2``, or 1 after a gap)."""
-    prev_ok = jnp.concatenate([jnp.zeros(1, dtype=bool), mask[:-1]])
-    prev = jnp.concatenate([jnp.zeros(1, dtype=resid.dtype), resid[:-1]])
-    innov = jnp.where(prev_ok, resid - rho * prev, resid)
-    return innov, jnp.where(prev_ok, 1.0 - rho**2, 1.0)
+def ar1_whiten(resid, mask, sigma, rho):
+    """The whitened residuals: innovations ``r_t - rho r_{t-1}`` over their sd ``sigma
+    sqrt(1 - rho^2)`` (a run's first sample: ``r_t / sigma``); 0 where ``mask`` is False.
+    ``-log L`` is half their sum of squares plus :func:`ar1_log_likelihood`'s log terms.
+    ``sigma``, ``rho``: one per trial (the leading axes)."""
+    xp = _xp(resid)
+    sigma, rho = xp.asarray(sigma)[..., None], xp.asarray(rho)[..., None]
+    lead = [(0, 0)] * (resid.ndim - 1)
+    prev = xp.pad(resid[..., :-1], [*lead, (1, 0)])
+    prev_ok = xp.pad(mask[..., :-1], [*lead, (1, 0)])
+    innov = xp.where(prev_ok, resid - rho * prev, resid)
+    sd = sigma * xp.sqrt(xp.where(prev_ok, 1.0 - rho**2, 1.0))
+    return xp.where(mask, innov / sd, 0.0)
 
 
 def ar1_log_likelihood(resid, mask, sigma, rho):
-    """AR(1) Gaussian log-likelihood of residuals ``resid`` (N) where ``mask`` is True;
-    ``sigma`` the marginal sd (N)."""
-    innov, factor = ar1_innovations(resid, mask, rho)
-    var = sigma**2 * factor
-    terms = jnp.where(mask, innov**2 / var + jnp.log(var), 0.0)
-    return -0.5 * jnp.sum(terms)
+    """Gaussian AR(1) log-likelihood (with its constant) of ``resid`` where ``mask`` is
+    True, per trial; ``sigma`` the marginal sd (units of ``resid``)."""
+    xp = _xp(resid)
+    w = ar1_whiten(resid, mask, sigma, rho)
+    sigma, rho = xp.asarray(sigma)[..., None], xp.asarray(rho)[..., None]
+    lead = [(0, 0)] * (resid.ndim - 1)
+    prev_ok = xp.pad(mask[..., :-1], [*lead, (1, 0)])
+    log_sd = xp.log(sigma) + 0.5 * xp.log(xp.where(prev_ok, 1.0 - rho**2, 1.0))
+    return -xp.sum(xp.where(mask, 0.5 * w**2 + log_sd + 0.5 * np.log(2 * np.pi), 0.0),
+                   axis=-1)
+
+
+def ar1_deviance(resid, mask) -> np.ndarray:
+    """``-2 log L`` per trial of ``resid (n_trials, n_samples)`` (zero where ``mask`` is
+    False) at the noise's estimate (:func:`ar1_estimate`: the likelihood profiled over
+    ``sigma`` and ``rho``), its constant ``n (1 + log 2 pi)`` dropped:
+    ``n log(S / n) - g log(1 - rho^2)``, ``S`` the innovations' sum of squares (a run's
+    first sample scaled by ``sqrt(1 - rho^2)``), ``g`` the number of runs."""
+    resid = np.where(mask, resid, 0.0)
+    sigma, rho = ar1_estimate(resid, mask)
+    n = mask.sum(axis=1).astype(np.float64)
+    return -2.0 * ar1_log_likelihood(resid, mask, sigma, rho) - n * (1.0 + np.log(2 * np.pi))
+
+
+def long_run_variance(sigma, rho):
+    """``sigma^2 (1 + rho) / (1 - rho)``: the variance per residual of the AR(1) likelihood's
+    long-run form (units of ``sigma`` squared)."""
+    return sigma**2 * (1.0 + rho) / (1.0 - rho)

@@ -188,8 +188,7 @@ def in_threads(solve_share: Callable, n: int, pool_size: int, threads: int):
     device ``i`` (mod the device count; several CPU devices need
     ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` before JAX starts); the tuple
     of per-problem arrays of the shares, concatenated. Each problem's result does not
-    depend on its pool's other problems, so the split does not change results (tested).
-    Two threads pay on a quiet 2-core machine, not on a loaded one (docs/decisions.md)."""
+    depend on its pool's other problems, so the split does not change results."""
     threads = max(1, min(int(threads), n // max(pool_size, 1)))
     if threads == 1:
         return solve_share(slice(0, n), None)

@@ -1,6 +1,7 @@
 """lmfit-style statistics of a batch at its optimum, identifiability flags, status, BIC choice.
 
-Covariance ``sigma^2 pinv(J^T J)`` in unconstrained coordinates, mapped to physical
+Covariance ``sigma^2 pinv(J^T J)`` (or the inverse of a given likelihood Hessian) in
+unconstrained coordinates, mapped to physical
 standard errors by the delta method; chi-square, reduced chi-square, and the
 condition number of the column-scaled ``J^T J``.
 
@@ -12,11 +13,8 @@ prewhitened sum of squares (``r_t - rho r_{t-1}``; the first sample of each of t
 residuals are autocorrelated, and the white-noise likelihood would then inflate
 every BIC difference; white residuals give ``rho ~ 0`` and the ordinary BIC. Each
 member's BIC is a likelihood of the same data in the same units, so the
-differences are comparable. (The former rule, ``n_eff log(chi2 / n)`` with a
-per-member ``n_eff = n (1 - rho) / (1 + rho)``, was not: ``n_eff`` multiplied the
-log of a variance in N^2, so ``rho`` falling by 0.002 from stick_slip to relaxation
-(noise sd 0.05 N, ``log(chi2/n) = -6.1``) lowered the bigger member's BIC by ~40,
-more than its parameter penalty: 6 of 32 stick-slip trials went to relaxation.)
+differences are comparable. The likelihood is :mod:`frictionfit.fit._noise`'s, the one
+behind the covariances and the posteriors too.
 
 A parameter is flagged (not reported as a confident number) when it sits on a
 bound, when its standard error is undefined or exceeds its value, or when it is
@@ -64,12 +62,17 @@ def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return par.to_physical(u), fd_slope(par.to_physical, u)
 
 
-def _covariances(jtj: np.ndarray, redchi: np.ndarray):
+def _covariances(jtj: np.ndarray, redchi: np.ndarray, hessian: np.ndarray | None = None):
     """Per trial (stacked, finite inputs): column scale, condition number of the scaled
-    ``J^T J``, variances, correlations and the covariance ``redchi pinv(J^T J)``."""
-    scale = np.sqrt(np.maximum(np.einsum("nii->ni", jtj), 1e-300))
+    ``J^T J``, variances, correlations and the covariance: ``redchi pinv(J^T J)``, or
+    ``pinv(hessian)`` where the likelihood's Hessian is given. The column scale (behind the
+    "singular" flag) is that of ``J^T J`` in the units of the residuals over the noise's
+    variance relative to ``redchi``: ``redchi hessian`` when given."""
+    info = jtj if hessian is None else redchi[:, None, None] * hessian
+    scale = np.sqrt(np.maximum(np.einsum("nii->ni", info), 1e-300))
     cond = scaled_condition(jtj)
-    cov = redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
+    cov = (redchi[:, None, None] * np.linalg.pinv(jtj, rcond=1e-13, hermitian=True)
+           if hessian is None else np.linalg.pinv(hessian, rcond=1e-13, hermitian=True))
     var = np.einsum("nii->ni", cov)
     sd = np.sqrt(np.clip(var, 0.0, None))
     corr = cov / np.maximum(sd[:, :, None] * sd[:, None, :], 1e-300)
@@ -169,19 +172,24 @@ def flag_fast_loading(flags, values, dt: float, stroke_mm: float) -> None:
             f["k"] = f"loads within {t_load / dt:.1f} samples (a lower bound)"
 
 
-def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):
+def statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=(),
+               hessian=None):
     """Statistics of one family member over a batch (NumPy).
 
     ``u`` (n_trials, n_params) full unconstrained optimum; ``resid`` (n_trials,
     n_samples) masked residuals (N); ``jtj`` (n_trials, p_free, p_free) over the free
     parameters ``free`` (indices; all by default); ``fixed_names`` the parameters
-    held fixed by the user (the other non-free ones are tied).
+    held fixed by the user (the other non-free ones are tied). ``hessian`` (like
+    ``jtj``, optional): the Gauss-Newton Hessian of ``-log posterior`` under the AR(1)
+    noise (:mod:`frictionfit.fit._noise`), whose inverse is then the covariance;
+    otherwise it is the white-noise ``redchi pinv(J^T J)``.
     """
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # overflow -> NONFINITE
-        return _statistics(model, u, resid, jtj, mask, free, fixed_names)
+        return _statistics(model, u, resid, jtj, mask, free, fixed_names, hessian)
 
 
-def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=()):
+def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names=(),
+                hessian=None):
     free = tuple(range(model.n_params)) if free is None else tuple(free)
     n = mask.sum(axis=1).astype(np.float64)
     p = len(free)
@@ -193,6 +201,8 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     names = model.param_names
     ok = (np.all(np.isfinite(jtj), axis=(1, 2)) & np.all(np.isfinite(u), axis=1)
           & np.isfinite(chi2))
+    if hessian is not None:
+        ok &= np.all(np.isfinite(hessian), axis=(1, 2))
     chi2[~ok] = np.nan
     phys, slope = zip(*(_delta(par, np.nan_to_num(u[:, j])) for j, par in enumerate(model.params)),
                       strict=True)
@@ -201,7 +211,8 @@ def _statistics(model: ContactModel, u, resid, jtj, mask, free=None, fixed_names
     corr, cond = np.zeros((n_trials, p, p)), np.full(n_trials, np.inf)
     cov = np.full((n_trials, p, p), np.nan)
     if ok.any():
-        scale[ok], cond[ok], var[ok], corr[ok], cov[ok] = _covariances(jtj[ok], redchi[ok])
+        scale[ok], cond[ok], var[ok], corr[ok], cov[ok] = _covariances(
+            jtj[ok], redchi[ok], None if hessian is None else hessian[ok])
     pos = {j: jj for jj, j in enumerate(free)}
     sd = np.sqrt(np.where(var >= 0, var, np.nan))
     se = np.stack([np.abs(slope[j]) * sd[:, pos[j]] if j in pos else np.zeros(n_trials)

@@ -14,10 +14,10 @@ and ``x`` (mm) the fitted finger travel: :data:`LATERAL` are ``offset`` (N), ``d
 (N/s), ``leak`` (N/mm: the lateral sensor's share of the normal force's change along the
 stroke) and ``gain`` (1: lateral over tangential force, signed). The problem is linear:
 weighted least squares on the lateral channel's blocks (the weights and the first motion
-left out as in the rubbing channel's fit); standard errors from the residual variance,
-inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1 autocorrelation ``rho``
-as the whole fit's are. What the lateral law leaves, the lateral stick-slip, is measured
-in its residuals as the rubbing channel's is: ``slip_noise`` (N,
+left out as in the rubbing channel's fit); standard errors as the whole fit's, from the
+long-run variance of the residuals' AR(1) noise (:mod:`frictionfit.fit._noise`). What
+the lateral law leaves, the lateral stick-slip, is measured in its residuals as the
+rubbing channel's is: ``slip_noise`` (N,
 :func:`~frictionfit.fit.derived.slip_noise`).
 """
 
@@ -28,9 +28,9 @@ from functools import lru_cache
 import jax.numpy as jnp
 import numpy as np
 
-from frictionfit.fit._noise import RHO_POSTERIOR, lag1_rho
+from frictionfit.fit._noise import ar1_estimate, long_run_variance
 from frictionfit.fit.derived import slip_noise
-from frictionfit.fit.measurement import MeasurementData
+from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import jit_host_loop
 
@@ -64,8 +64,8 @@ def fit_lateral(model: MeasurementModel, u: np.ndarray, drive: tuple, direction:
     """Name -> ``(value, stderr)`` of :data:`LATERAL` and ``slip_noise`` for one lateral
     channel (module notes).
 
-    ``model``, ``u`` (unconstrained), ``drive`` (the fit's ``drive_input``: ``commands`` in
-    s with each movement's latency, ``signs``, each movement's ``stretch``) and
+    ``model``, ``u`` (unconstrained), ``drive`` (the fitted item's ``drive``: ``commands``
+    in s with each movement's latency, ``signs``, each movement's ``stretch``) and
     ``direction``: the rubbing channel's fit; ``lateral``: the lateral channel's blocks
     (:func:`~frictionfit.fit.measurement.measurement_data`). NaN where fewer than
     :data:`MIN_BLOCKS` blocks are fitted or the regressors are degenerate.
@@ -85,9 +85,8 @@ def fit_lateral(model: MeasurementModel, u: np.ndarray, drive: tuple, direction:
     if rank < len(LATERAL):
         return nan
     resid = a @ coef - b  # weight (prediction - y), as the whole fit's
-    s2 = np.sum(resid**2) / (fitted.sum() - len(LATERAL))
-    rho = float(np.clip(lag1_rho(resid[None], fitted[None])[0], *RHO_POSTERIOR))
-    se = np.sqrt(np.diag(np.linalg.inv(a.T @ a)) * s2 * (1 + rho) / (1 - rho))
+    s2 = long_run_variance(*ar1_estimate(resid[None], fitted[None]))[0]
+    se = np.sqrt(np.diag(np.linalg.inv(a.T @ a)) * s2)
     out = {n: (float(v), float(e)) for n, v, e in zip(LATERAL, coef, se, strict=True)}
     out["slip_noise"] = slip_noise(resid, t, weight, commands, lateral.noise)
     return out

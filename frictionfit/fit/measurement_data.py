@@ -79,8 +79,8 @@ class MeasurementData:
         return self.commands, self.signs, self.stretch
 
     def driven_by(self, drive: tuple) -> MeasurementData:
-        """This item with a fit's drive (``FitResult.drive_input[i]``: each movement's timing
-        as the fit found it)."""
+        """This item with another drive ``(commands, signs, stretch)`` (each movement's
+        timing; the signs are kept)."""
         commands, _, stretch = (np.asarray(a) for a in drive)
         return replace(self, commands=commands, stretch=stretch)
 

@@ -48,10 +48,8 @@ class FitResult:
     solver : str
         The solver used; ``n_starts`` the number of starting points per trial.
     direction, drive_input, drive, stroke_mm, priors
-        What :meth:`predict` needs to recompute a trial's fitted curve (``drive="measurement"``:
-        ``drive_input[i]`` holds the move commands, s, their signs and each movement's
-        duration over ``ramp``), and the ``priors=`` the fit was given (``None``: the
-        parameters' defaults).
+        What :meth:`predict` needs to recompute a trial's fitted curve, and the ``priors=``
+        the fit was given (``None``: the parameters' defaults).
     init : list of dict, optional
         Per trial, the starting point in physical units (the data-driven guess).
     correl : list of dict, optional
@@ -66,10 +64,6 @@ class FitResult:
     session_rigs : dict, optional
         Whole fits with the session's motor profile held: session -> the
         :class:`~frictionfit.fit.session.SessionRig` held (``None`` otherwise).
-    block_var : ndarray, optional
-        Whole-measurement fits: per trial, the variance (N^2) of one weighted block
-        residual that ``cov`` implies (the reduced chi-square times the AR(1) inflation
-        ``(1 + rho) / (1 - rho)``); the posteriors' likelihood scale.
     """
 
     model: list[str]
@@ -98,7 +92,6 @@ class FitResult:
     correl: list[dict] | None = field(default=None, repr=False)
     derived: list[dict] | None = field(default=None, repr=False)
     cov: list[np.ndarray] | None = field(default=None, repr=False)
-    block_var: np.ndarray | None = field(default=None, repr=False)
     ndata: np.ndarray | None = field(default=None, repr=False)
     nvarys: np.ndarray | None = field(default=None, repr=False)
     session_rigs: dict | None = field(default=None, repr=False)
@@ -159,17 +152,12 @@ class FitResult:
         return pd.DataFrame(rows)
 
     def predict(self, i: int, t) -> np.ndarray:
-        """The fitted force (N) of trial ``i`` at uniform times ``t`` (s); for a
-        whole-measurement fit, the channel at increasing times ``t`` from the recording's start."""
+        """The fitted force (N) of trial ``i`` at uniform times ``t`` (s)."""
         import jax.numpy as jnp
 
         if self.direction is None or self.drive_input is None:
             raise ValueError("this FitResult does not carry its drive; refit with fit_trials")
         member = self.member(i)
-        if self.drive == "measurement":  # move commands, signs, each movement's stretch
-            commands, signs, stretch = (jnp.asarray(a) for a in self.drive_input[i])
-            return np.asarray(member.predict(jnp.asarray(self.u[i]), jnp.asarray(t), commands,
-                                             signs, self.direction[i], stretch=stretch))
         if self.drive == "events":
             drive_i = (self.drive_input[0][i], self.drive_input[1][i])
         else:
@@ -187,13 +175,8 @@ class FitResult:
         return np.isfinite(y) & ~saturated_samples(y)
 
     def member(self, i: int):
-        """Trial ``i``'s :class:`~frictionfit.models.ContactModel` (with drive and priors), or
-        its :class:`~frictionfit.models.MeasurementModel` for a whole-measurement fit."""
-        from frictionfit.models import MeasurementModel, get_model
-
-        if self.model[i].startswith("measurement-"):
-            law = self.model[i].removeprefix("measurement-")
-            return MeasurementModel(law, self.stroke_mm).with_priors(self.priors)
+        """Trial ``i``'s :class:`~frictionfit.models.ContactModel` (with drive and priors)."""
+        from frictionfit.models import get_model
 
         return get_model(self.model[i], drive=self.drive, stroke_mm=self.stroke_mm,
                          priors=self.priors)

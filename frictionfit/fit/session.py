@@ -28,9 +28,8 @@ __all__ = ["SESSION_RIG", "SessionRig", "estimate_session_rigs", "held_covarianc
            "held_profile", "read_session_rigs", "write_session_rigs"]
 
 #: The rig's parameters a session holds: the movement's duration and acceleration share,
-#: set by the motor's profile all day. The latency stays per recording: held too (at the
-#: first fits' medians), the simulator's stiffness error grew 0.020 -> 0.065 and its fits
-#: with none of the five key parameters flagged fell 0.950 -> 0.893 (docs/decisions.md).
+#: set by the motor's profile all day. The latency stays per recording: it jitters from
+#: one recording to the next, and holding it would push its error into the stiffness.
 SESSION_RIG = ("ramp", "accel")
 #: Fewest usable fits a session's profile is taken from.
 MIN_RECORDINGS = 2

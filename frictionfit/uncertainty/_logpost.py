@@ -1,11 +1,12 @@
 """The per-trial log-posterior of a contact model, in unconstrained coordinates (JAX).
 
-Likelihood: Gaussian residuals with an AR(1) correlation (residuals of rubbing
-signals are autocorrelated), ``r_t = rho r_{t-1} + e_t``, marginal sd ``sigma``.
-``sigma`` (N) and ``rho`` are estimated once per trial from the least-squares
-residuals (n ~ 2000 samples pin them to ~2 %, so plugging them in barely narrows
-the posterior) and held fixed while sampling. A sample whose predecessor is
-missing (NaN) enters with its marginal variance.
+Likelihood: the one AR(1) Gaussian likelihood of :mod:`frictionfit.fit._noise`
+(residuals of rubbing signals are autocorrelated), ``r_t = rho r_{t-1} + e_t``,
+marginal sd ``sigma``. ``sigma`` (N) and ``rho`` are estimated once per trial from the
+least-squares residuals (:func:`~frictionfit.fit._noise.ar1_estimate`; thousands of
+samples pin them, so plugging them in barely narrows the posterior) and held fixed
+while sampling. A sample whose predecessor is missing (NaN) enters with its marginal
+variance.
 
 Priors (weakly informative, from each parameter's physical bounds): a bounded
 parameter's unconstrained ``u`` has a standard logistic density, i.e. the

@@ -18,8 +18,7 @@ data it was fitted to and returns a :class:`Posterior` per trial, by one of
   :func:`~frictionfit.uncertainty.laplace.profile_disagreement`). The fit's
   "stderr > value" flag alone does not send a trial to emcee: bounded parameters
   are Gaussian in their log/logit coordinate, where a wide posterior is fine for
-  Laplace as long as the profile check passes (on 200 simulated ``relaxation``
-  trials that flag was raised in 189 trials; Laplace still covered 70 % / 92 %).
+  Laplace as long as the profile check passes.
 
 The log-posterior (AR(1) Gaussian likelihood, priors from the parameter bounds)
 is described in :mod:`frictionfit.uncertainty._logpost`.
@@ -38,8 +37,8 @@ from emcee.backends import HDFBackend
 from frictionfit._optional import require
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
-from frictionfit.fit import FitResult, Trials
-from frictionfit.fit._noise import noise_estimate
+from frictionfit.fit import FitResult, MeasurementFit, Trials
+from frictionfit.fit._noise import ar1_estimate
 from frictionfit.fit._numerics import fd_slope, pad_rows
 from frictionfit.fit._stats import VANISHING
 from frictionfit.models import ContactModel, get_model
@@ -174,8 +173,7 @@ def put_summary(out: dict, i: int, summary: dict) -> None:
         out[key][i] = value
 
 
-#: Rows of one batched log-posterior call: per row, 256 was the fastest of 32-1024 on
-#: this 2-core CPU (57 us vs 76 us at 512: the batch's state no longer fits the cache).
+#: Rows of one batched log-posterior call (larger batches outgrow the CPU's cache).
 EVAL_CHUNK = 256
 
 
@@ -188,7 +186,7 @@ def _evaluator(model, data: tuple, pool: ThreadPoolExecutor, workers: int,
 
     Every chunk shape up to ``max_rows`` rows is compiled here, before sampling: the
     rows shrink as trials converge, and each new shape would otherwise stall the
-    sampler for ~0.7 s of compilation in the middle of a run.
+    sampler for a compilation in the middle of a run.
     """
     f = logp_rows(model, sampling)
 
@@ -283,6 +281,9 @@ def sample_posterior(
 def _settings(fit, method, noise, nwalkers, max_steps, check_every, min_tau_multiple, seed,
               chains_path, pilot_steps) -> SamplerSettings:
     """The sampler's settings, checked against the fit."""
+    if isinstance(fit, MeasurementFit):
+        raise FitError("sample_posterior takes per-stroke fits (fit_trials); a whole fit "
+                       "samples its own: fit.posterior(method=...)")
     if getattr(fit, "drive", "events") != "events":
         raise FitError(f"sample_posterior needs a fit with drive='events', not {fit.drive!r}")
     if method not in METHODS:
@@ -347,8 +348,11 @@ def _with_directions(fit: FitResult, group: TrialGroup, u_hat: np.ndarray) -> Tr
 def _noise(model: ContactModel, trials: Trials, u_hat: np.ndarray, white: bool) -> _Noise:
     """Noise sd (N) and AR(1) coefficient of ``trials`` at the fit ``u_hat``."""
     resid = np.asarray(residuals(model)(u_hat, on_device(trials)))
-    sigma, rho = noise_estimate(resid, trials.mask, model.n_params)
-    return _Noise(sigma, np.zeros_like(rho) if white else rho)
+    if white:  # the likelihood's estimate with rho held at 0
+        n = np.maximum(trials.mask.sum(axis=1), 1)
+        sigma = np.sqrt(np.sum(np.where(trials.mask, resid, 0.0) ** 2, axis=1) / n)
+        return _Noise(sigma, np.zeros_like(sigma))
+    return _Noise(*ar1_estimate(resid, trials.mask))
 
 
 def _sample_group(fit: FitResult, group: TrialGroup, how: SamplerSettings, out: dict) -> None:

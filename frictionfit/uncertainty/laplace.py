@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.fit import Trials
-from frictionfit.fit._noise import ar1_innovations
+from frictionfit.fit._noise import ar1_whiten
 from frictionfit.fit._numerics import normal_equations, scaled_condition, scaled_pinv
 from frictionfit.models import ContactModel
 from frictionfit.uncertainty._logpost import OFFSET_PRIOR_SD_N, ROW_AXES, logp_rows
@@ -51,10 +51,8 @@ def _curvature(model: ContactModel):
     def whitened(u, trial: Trials, sigma, rho):
         pred = model.predict(u, trial.t, trial.drive_input, trial.direction)
         r = jnp.where(trial.mask, pred - trial.y, 0.0)
-        innov, factor = ar1_innovations(r, trial.mask, rho)
-        sd = sigma * jnp.sqrt(factor)
         # The model's Normal priors are residual rows of their own (Gauss-Newton too).
-        return jnp.concatenate([jnp.where(trial.mask, innov / sd, 0.0),
+        return jnp.concatenate([ar1_whiten(r, trial.mask, sigma, rho),
                                 model.prior_residuals(u)])
 
     def one(u, trial: Trials, sigma, rho):

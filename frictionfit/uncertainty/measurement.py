@@ -1,14 +1,15 @@
-"""Posteriors of whole-measurement fits: Laplace and emcee.
+"""Posteriors of whole fits: Laplace and emcee.
 
-:func:`measurement_posterior` takes the :class:`~frictionfit.fit.FitResult` of
-:func:`~frictionfit.fit.measurement.fit_measurements` and the items it was fitted to and
-returns a :class:`~frictionfit.uncertainty.Posterior`, one row per recording x channel.
+:func:`whole_fit_posterior` takes a :class:`~frictionfit.fit.MeasurementFit` (which keeps
+its data) and returns a :class:`~frictionfit.uncertainty.Posterior`, one row per recording
+x channel.
 
-The density is the fit's own: its residual (weighted block residuals, then the model's
-prior rows scaled by the recording's noise sd) over the variance per block that the fit's
-covariance implies, ``FitResult.block_var`` (``redchi (1 + rho) / (1 - rho)``, ``rho`` the
-lag-1 coefficient of the block residuals). Its mode is the fit's optimum and its Gauss-Newton
-covariance is ``FitResult.cov``, so Laplace is exactly its Gaussian approximation.
+The density is the fit's own, the one likelihood's long-run form for whole fits
+(:mod:`frictionfit.fit._noise`): its residual (weighted block residuals, then the model's
+prior rows scaled by the recording's noise sd) over the long-run variance of the AR(1)
+noise the fit estimated at its optimum (``MeasurementFit.noise_var``). Its mode is the
+fit's optimum and its Gauss-Newton covariance is ``MeasurementFit.cov``, so Laplace is
+exactly its Gaussian approximation.
 
 - ``"laplace"``: draws from ``N(u_hat, cov)`` over the free parameters in the fit's
   unconstrained coordinates, mapped to physical units; quantiles and sd of the draws.
@@ -33,6 +34,7 @@ too little data, no finite covariance) get method ``"none"``, the reason, NaN nu
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Sequence
 from functools import lru_cache
 
@@ -41,14 +43,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from frictionfit.errors import FitError, Status
-from frictionfit.fit import FitResult
 from frictionfit.fit._stats import VANISHING
-from frictionfit.fit.measurement import (
-    MeasurementData,
-    normal_fn,
-    profile_drops,
-    stack_items,
-)
+from frictionfit.fit._whole_problem import WholeFitData, normal_fn, profile_drops, stack_items
+from frictionfit.fit.measurement_data import MeasurementData
+from frictionfit.fit.whole_result import MeasurementFit
 from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import jit_host_loop
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
@@ -64,7 +62,7 @@ from frictionfit.uncertainty.engine import (
 )
 from frictionfit.uncertainty.posterior import Posterior
 
-__all__ = ["measurement_posterior"]
+__all__ = ["measurement_posterior", "whole_fit_posterior"]
 
 _SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
 
@@ -74,21 +72,22 @@ def _bounded(model: MeasurementModel, free: tuple[int, ...]) -> np.ndarray:
     return np.array([model.params[j].transform != "identity" for j in free])
 
 
-def _density(model: MeasurementModel, free: tuple[int, ...], data: tuple, s2: np.ndarray):
+def _density(model: MeasurementModel, free: tuple[int, ...], data: WholeFitData,
+             s2: np.ndarray):
     """``f(U (R, q), idx (R,)) -> (R,)``: the log density at the free parameters ``U`` (the
-    fit's unconstrained coordinates) of items ``idx`` of the stacked NumPy ``data``, flat on
-    the bounds of each parameter's sampling coordinate (value or log value) and carried to
-    ``u`` (its logistic Jacobian); ``s2`` (per item) the variance of a weighted block
-    residual (N^2). On the host by the compiled loop (no JAX): emcee's density."""
-    y, weight, t, commands, signs, stretch, direction, noise, base = data
+    fit's unconstrained coordinates) of items ``idx`` of ``data``, flat on the bounds of
+    each parameter's sampling coordinate (value or log value) and carried to ``u`` (its
+    logistic Jacobian); ``s2`` (per item) the long-run noise variance (N^2). On the host by
+    the compiled loop (no JAX): emcee's density."""
     bounded, free_l = _bounded(model, free), list(free)
 
     def evaluate(u_free: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        u = base[idx]
+        u = data.base[idx]
         u[:, free_l] = u_free
-        cost = model.weighted_cost(u, t[idx], commands[idx], signs[idx], stretch[idx],
-                                   direction[idx], y[idx], weight[idx])
-        prior = noise[idx, None] * model.prior_residuals(u)
+        cost = model.weighted_cost(u, data.t[idx], data.commands[idx], data.signs[idx],
+                                   data.stretch[idx], data.direction[idx], data.y[idx],
+                                   data.weight[idx])
+        prior = data.noise[idx, None] * model.prior_residuals(u)
         lp = (-(cost + 0.5 * np.sum(prior**2, axis=-1)) / s2[idx]
               + np.sum(np.where(bounded, log_logistic(u_free), 0.0), axis=-1))
         return np.where(np.isfinite(lp), lp, -np.inf)
@@ -96,8 +95,8 @@ def _density(model: MeasurementModel, free: tuple[int, ...], data: tuple, s2: np
     return evaluate
 
 
-def _profile_disagreement(model, free, data, s2, mode: np.ndarray, cov: np.ndarray
-                          ) -> np.ndarray:
+def _profile_disagreement(model, free, data: WholeFitData, s2: np.ndarray, mode: np.ndarray,
+                          cov: np.ndarray) -> np.ndarray:
     """Per item, max over free parameters and sides of ``|drop - 2|`` of the log density
     2 sd out along the parameter's Gaussian profile line (0 for an exact Gaussian; inf where
     the density is not finite there)."""
@@ -123,26 +122,19 @@ def _laplace_summary(model: MeasurementModel, draws: np.ndarray) -> dict:
     return nan_summary(model.param_names) | {k: summary[k] for k in ("quantiles", "sd")}
 
 
-def measurement_posterior(
-    fit: FitResult, items: Sequence[MeasurementData], *, method: str = "laplace",
-    n_draws: int = 4000, nwalkers: int | None = None, max_steps: int = 2000,
-    check_every: int = 25, min_tau_multiple: float = 50.0, pilot_steps: int = 30,
-    seed: int = 0,
+def whole_fit_posterior(
+    fit: MeasurementFit, *, method: str = "laplace", n_draws: int = 4000,
+    nwalkers: int | None = None, max_steps: int = 2000, check_every: int = 25,
+    min_tau_multiple: float = 50.0, pilot_steps: int = 30, seed: int = 0,
 ) -> Posterior:
-    """Posterior of every row of a whole-measurement fit, by Laplace and/or emcee.
+    """Posterior of every row of a whole fit, by Laplace and/or emcee.
 
     Parameters
     ----------
-    fit : FitResult
-        The result of :func:`~frictionfit.fit.measurement.fit_measurements` on ``items``.
-    items : sequence of MeasurementData
-        The items fitted, in the fit's row order (their command times are taken from the
-        fit, which carries each movement's own latency).
+    fit : MeasurementFit
+        A whole fit (:func:`frictionfit.fit_recordings`); its data and noise are its own.
     method : {"laplace", "auto", "emcee"}
-        See the module docstring. Laplace by default: on simulated measurements its 95 %
-        intervals hold the truth at about the nominal rate, while emcee takes ~30 s per
-        recording of two channels and mixes slowly where a relaxation branch sits at its bound
-        (which ``"auto"`` sends to it).
+        See the module docstring.
     n_draws : int
         Laplace draws per row.
     nwalkers : int, optional
@@ -162,22 +154,18 @@ def measurement_posterior(
 
     Examples
     --------
-    >>> from frictionfit.fit.measurement import fit_measurements, measurement_data
+    >>> import frictionfit
     >>> from frictionfit.simulation.measurements import simulate_measurements
     >>> rec, = simulate_measurements([(1, "paper-2", 1)], seed=3)
-    >>> items = [measurement_data(rec, "index_x")]
-    >>> res = fit_measurements(items, progress=False)
-    >>> post = measurement_posterior(res, items, method="laplace")
-    >>> post.method
+    >>> fit = frictionfit.fit_recordings([rec], channels=["index_x"], progress=False)
+    >>> whole_fit_posterior(fit, method="laplace").method
     ['laplace']
     """
-    if fit.drive != "measurement":
-        raise FitError(f"measurement_posterior needs a whole-measurement fit, not drive="
-                       f"{fit.drive!r} (use sample_posterior)")
+    if not isinstance(fit, MeasurementFit):
+        raise FitError(f"whole_fit_posterior needs a whole fit (MeasurementFit), not "
+                       f"{type(fit).__name__} (use sample_posterior)")
     if method not in METHODS:
         raise FitError(f"unknown uncertainty method {method!r}; choose from {METHODS}")
-    if len(items) != fit.n_trials:
-        raise FitError(f"{len(items)} items but the fit has {fit.n_trials} rows")
     start = time.perf_counter()
     n = fit.n_trials
     out = blank_rows(n)
@@ -193,14 +181,25 @@ def measurement_posterior(
             groups.setdefault((model, free), []).append(i)
     rng = np.random.default_rng(seed)
     for (model, free), rows in groups.items():
-        _sample_group(fit, items, model, free, np.array(rows), method, n_draws, rng, out,
+        _sample_group(fit, model, free, np.array(rows), method, n_draws, rng, out,
                       dict(nwalkers=nwalkers or 2 * len(free) + 2, seed=seed,
                            max_steps=max_steps, check_every=check_every,
                            min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
     return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
 
 
-def _unusable(fit: FitResult, i: int) -> str:
+def measurement_posterior(fit: MeasurementFit, items: Sequence[MeasurementData] | None = None,
+                          **kw) -> Posterior:
+    """Deprecated: the fit's ``.posterior(method=...)`` (:func:`whole_fit_posterior`);
+    ``items`` is not needed (the fit keeps its data) and must match it if given."""
+    warnings.warn("measurement_posterior is deprecated and will be removed in the next "
+                  "release; use the fit's .posterior()", DeprecationWarning, stacklevel=2)
+    if items is not None and len(items) != fit.n_trials:
+        raise FitError(f"{len(items)} items but the fit has {fit.n_trials} rows")
+    return whole_fit_posterior(fit, **kw)
+
+
+def _unusable(fit: MeasurementFit, i: int) -> str:
     """Why row ``i`` has no posterior ("" when it can be sampled)."""
     if Status(int(fit.status[i])) in _SKIP:
         return f"fit status {Status(int(fit.status[i])).name.lower()}"
@@ -211,7 +210,7 @@ def _unusable(fit: FitResult, i: int) -> str:
     return ""
 
 
-def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[int, ...],
+def _sample_group(fit: MeasurementFit, model: MeasurementModel, free: tuple[int, ...],
                   rows: np.ndarray, method: str, n_draws: int, rng: np.random.Generator,
                   out: dict, emcee_kw: dict) -> None:
     """Laplace for the rows of one model and free set, then emcee where ``method`` asks."""
@@ -219,9 +218,8 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
     free_l = list(free)
     mode, cov = u_hat[:, free_l], np.stack([fit.cov[i] for i in rows])
     if method != "laplace":  # the density is needed
-        sub = [items[i].driven_by(fit.drive_input[i]) for i in rows]
-        data = stack_items(sub, u_hat)
-        s2 = np.asarray(fit.block_var[rows])
+        data = stack_items([fit.items[i] for i in rows], u_hat)
+        s2 = np.asarray(fit.noise_var[rows])
     if method == "auto":
         dev = _profile_disagreement(model, free, data, s2, mode, cov)
         reasons = [auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
@@ -239,7 +237,7 @@ def _sample_group(fit: FitResult, items, model: MeasurementModel, free: tuple[in
         _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, emcee_kw)
 
 
-def _store_laplace(fit: FitResult, model, i: int, draws: np.ndarray, out: dict) -> None:
+def _store_laplace(fit: MeasurementFit, model, i: int, draws: np.ndarray, out: dict) -> None:
     out["method"][i] = "laplace"
     put_summary(out, i, _laplace_summary(model, draws))
     out["converged"][i] = int(fit.status[i]) == Status.CONVERGED
@@ -260,8 +258,8 @@ _U_START = 5.0
 @lru_cache(maxsize=16)
 def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
     """Jitted ``(u_free, data, s2, bounded) -> (log density, gradient, Gauss-Newton
-    Hessian)`` of one item's density in ``u`` (:func:`_density`), the
-    logistic Jacobian's terms exact."""
+    Hessian)`` of one item's density in ``u`` (:func:`_density`), the logistic Jacobian's
+    terms exact."""
     normal = normal_fn(model, free)
 
     def one(u, data, s2, bounded):
@@ -276,21 +274,23 @@ def _gauss_newton_fn(model: MeasurementModel, free: tuple[int, ...]):
 
 
 def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
-                    data: tuple, s2: np.ndarray, steps: int = 12, max_step: float = 2.0
+                    data: WholeFitData, s2: np.ndarray, steps: int = 12,
+                    max_step: float = 2.0
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Per item, the mode and covariance of emcee's first proposal in ``u``: damped
     Gauss-Newton steps (at most ``max_step`` in ``u``, halved until the density rises) from
     the fit's optimum with bounded parameters moved within ``+-_U_START``, and the inverse of
     the Gauss-Newton Hessian there plus the logistic density's precision (``3 / pi^2``) on
     bounded parameters: a floor that gives width to a parameter the data barely see (one on
-    its bound, whose column of the fit's covariance is 0)."""
+    its bound, whose column of the fit's covariance is 0). ``s2``: per item, the long-run
+    noise variance (N^2)."""
     bounded = _bounded(model, free)
     gn = _gauss_newton_fn(model, free)
     floor = np.diag(np.where(bounded, 3.0 / np.pi**2, 0.0))
     mode = np.where(bounded, np.clip(u_free, -_U_START, _U_START), u_free)
     covs = np.empty((len(mode), len(free), len(free)))
     for k in range(len(mode)):
-        row = jax.tree_util.tree_map(lambda a, k=k: a[k], data)
+        row = data.take(k)
         lp, grad, hess = (np.asarray(a) for a in gn(jnp.asarray(mode[k]), row, s2[k], bounded))
         for _ in range(steps):
             step = np.linalg.solve(hess + floor, grad)
@@ -309,12 +309,13 @@ def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
     return mode, covs
 
 
-def _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, kw: dict) -> None:
+def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, sel, rows, out,
+                  kw: dict) -> None:
     """emcee for the group's rows ``sel`` in the fit's unconstrained coordinates (the density
     flat on the bounds of the sampling coordinates, times the logistic Jacobian), started
     from :func:`_proposal_start` (the pilot stages refit the proposal)."""
     free_l = list(free)
-    sub = tuple(a[sel] for a in data)
+    sub = data.take(sel)
     centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, s2[sel])
     chains = run_lockstep(_density(model, free, sub, s2[sel]), centre, covs, **kw)
     for k, chain in zip(sel, chains, strict=True):

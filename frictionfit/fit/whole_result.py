@@ -1,0 +1,115 @@
+"""The result of a whole fit: :class:`MeasurementFit`, a :class:`FitResult` that owns its
+data.
+
+One row per recording and channel. Besides the per-row statistics every
+:class:`~frictionfit.fit.result.FitResult` has, it keeps each row's model (law, stroke and
+priors), the data as fitted (:class:`~frictionfit.fit.measurement_data.MeasurementData`
+with each movement's timing as the fit found it, and the block weights) and the noise the
+one likelihood holds (:mod:`frictionfit.fit._noise`), so its curves, per-motion refits and
+posteriors need nothing passed again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from frictionfit.fit.measurement_data import MeasurementData
+from frictionfit.fit.result import FitResult, fit_report
+
+__all__ = ["MeasurementFit"]
+
+
+@dataclass(repr=False)
+class MeasurementFit(FitResult):
+    """Per-row results of a whole fit (see :class:`~frictionfit.fit.result.FitResult` for
+    the statistics), with what they were fitted to.
+
+    Attributes
+    ----------
+    items : list of MeasurementData
+        Per row, the channel as fitted: blocks ``t`` (s), ``y`` (N) and ``weight``, and
+        the drive with each movement's own onset and duration.
+    fitted_models : list of MeasurementModel
+        Per row, the model fitted (law, stroke, priors).
+    noise_sd, noise_rho : ndarray
+        Per row, the AR(1) noise of the weighted block residuals at the optimum (marginal
+        sd, N, and lag-1 coefficient; :mod:`frictionfit.fit._noise`): the one likelihood's
+        noise, behind the BIC, the covariance and the posteriors.
+    item_of, motion_of : ndarray or None
+        For :meth:`per_motion`'s result: per row, the row of the whole fit it refits and
+        the motion's number in it.
+    """
+
+    drive: str = "measurement"
+    items: list[MeasurementData] | None = field(default=None, repr=False)
+    fitted_models: list | None = field(default=None, repr=False)
+    noise_sd: np.ndarray | None = field(default=None, repr=False)
+    noise_rho: np.ndarray | None = field(default=None, repr=False)
+    item_of: np.ndarray | None = field(default=None, repr=False)
+    motion_of: np.ndarray | None = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        return "Measurement" + super().__repr__()
+
+    @property
+    def noise_var(self) -> np.ndarray:
+        """Per row, the long-run variance of its noise (N^2): the variance per weighted
+        block residual of the log posterior whose curvature is :attr:`cov`."""
+        from frictionfit.fit._noise import long_run_variance
+
+        return long_run_variance(self.noise_sd, self.noise_rho)
+
+    @property
+    def ids(self) -> list[str]:
+        """``recording/channel`` of each row (with ``#motion`` for a per-motion result)."""
+        names = [f"{d.name}/{d.channel}" for d in self.items]
+        if self.motion_of is None:
+            return names
+        return [f"{n}#{m}" for n, m in zip(names, self.motion_of, strict=True)]
+
+    def member(self, i: int):
+        """Row ``i``'s :class:`~frictionfit.models.MeasurementModel`."""
+        return self.fitted_models[i]
+
+    def predict(self, i: int, t=None) -> np.ndarray:
+        """The fitted channel (N) of row ``i`` at increasing times ``t`` (s from the
+        recording's start; default: the fitted blocks' times)."""
+        import jax.numpy as jnp
+
+        d = self.items[i]
+        t = d.t if t is None else np.asarray(t, dtype=np.float64)
+        return np.asarray(self.member(i).predict(
+            jnp.asarray(self.u[i]), jnp.asarray(t), jnp.asarray(d.commands),
+            jnp.asarray(d.signs), d.direction, stretch=jnp.asarray(d.stretch)))
+
+    def report(self, i: int = 0, min_correl: float = 0.1) -> str:
+        """Row ``i``'s lmfit-style report (:func:`~frictionfit.fit.result.fit_report`)."""
+        return fit_report(self, i, min_correl)
+
+    def residuals(self, i: int) -> np.ndarray:
+        """Row ``i``'s weighted block residuals ``weight (predict - y)`` (N; 0 where a block
+        is not fitted)."""
+        d = self.items[i]
+        return np.where(d.mask, d.weight * (self.predict(i) - d.y), 0.0)
+
+    def plot(self, i: int, path: str | Path, title: str | None = None) -> Path:
+        """A PNG of row ``i``'s fitted blocks against its fit, with residuals, at ``path``."""
+        from frictionfit.fit.plot import plot_fit
+
+        d = self.items[i]
+        return plot_fit(self, i, d.t[d.mask], d.y[d.mask], path,
+                        title=title or self.ids[i])
+
+    def per_motion(self, *, max_steps: int = 100, pool_size: int = 16,
+                   progress: bool | None = False) -> MeasurementFit:
+        """Each fitted motion of each row refitted on its own (rig, sensor and ``wear``
+        held at the whole fit's values, from its optimum): one row per motion, with
+        :attr:`item_of` and :attr:`motion_of` (:func:`~frictionfit.fit.measurement.
+        refit_motions`)."""
+        from frictionfit.fit.measurement import refit_motions
+
+        return refit_motions(self, max_steps=max_steps, pool_size=pool_size,
+                             progress=progress)
