@@ -90,6 +90,7 @@ def fit_recordings(
     model: MeasurementModel | str = "auto",
     solver: BatchedLevenbergMarquardt = WHOLE_FIT_SOLVER,
     rig: str | Mapping[str, SessionRig] = "recording",
+    creep: str = "session",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
@@ -127,6 +128,11 @@ def fit_recordings(
         profile, the better BIC kept, unless ``refit_rig_outliers`` is False).
         ``"session"``: the motor's profile held at each session's median and fitted again,
         its spread carried into the stderrs (``session_rigs``). A mapping: earlier profiles.
+    creep : {"session", "recording"}
+        ``"session"``: the finger's creep, the slow relaxation branch's time constant
+        ``tau2``, is the rig's: fitted free first, then held at the median of each session's
+        fits of the same channel (a recording without a session, or alone in it, keeps its
+        own), its spread carried into the stderrs; ``"recording"``: free in every fit.
     timing : {"movement", "rig"}
         ``"movement"``: each movement's own latency and duration (the motor's reads, else
         found from the force at a first optimum); ``"rig"``: one for all.
@@ -159,6 +165,7 @@ def fit_recordings(
     ['s1_paper-2_01/index_x']
     """
     items = _items(recordings, channels, model, decimate, skip_motions)
-    return _as_whole(fit_whole(items, model=model, solver=solver, rig=rig, timing=timing,
-                               fix=fix, u0=u0, max_steps=max_steps, pool_size=pool_size,
+    return _as_whole(fit_whole(items, model=model, solver=solver, rig=rig, creep=creep,
+                               timing=timing, fix=fix, u0=u0, max_steps=max_steps,
+                               pool_size=pool_size,
                                progress=progress, refit_rig_outliers=refit_rig_outliers))

@@ -49,6 +49,12 @@ def fit(
                             "day holds its day's profile)."),
     save_rig: Path = typer.Option(None, help="Whole fits with --rig session: write each "
                                   "session's motor profile to this .json file."),
+    creep: str = typer.Option("session", help="Whole fits: session (the finger's creep, the "
+                              "slow relaxation branch's time constant tau2, fitted free first, "
+                              "then held at the median of each session's fits of the channel "
+                              "in the batch, its spread carried into the stderrs; a recording "
+                              "alone in its session keeps its own) or recording (free in "
+                              "every fit)."),
     channel: list[str] = typer.Option([], help="Channels to fit (repeatable; whole fits: "
                                       "default thumb_x and index_x; --motions: every channel). "
                                       "A dead (constant) channel is skipped by name."),
@@ -114,7 +120,7 @@ def fit(
             raise typer.BadParameter(f"{', '.join(used)} work on per-motion fits only: add "
                                      "--motions", param_hint="--whole")
         _fit_whole(files, strict, model, tuple(channel) or ("thumb_x", "index_x"), fixed,
-                   priors, stroke_mm, _rig_option(rig, save_rig), uncertainty,
+                   priors, stroke_mm, (_rig_option(rig, save_rig), creep), uncertainty,
                    _Output(out, plot, report, save_rig, overwrite))
         return
     if rig != "recording" or save_rig is not None:
@@ -313,10 +319,11 @@ def _rig_option(rig: str, save_rig: Path | None) -> str | dict:
 
 
 def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, ...],
-               fixed: dict, priors: dict | None, stroke_mm: float, rig: str | dict,
-               uncertainty: str, output: _Output) -> None:
+               fixed: dict, priors: dict | None, stroke_mm: float,
+               rig_creep: tuple[str | dict, str], uncertainty: str, output: _Output) -> None:
     """``fit --whole``: one measurement fit per recording and channel, one row each (with
-    its posterior's quantiles unless ``uncertainty`` is "none")."""
+    its posterior's quantiles unless ``uncertainty`` is "none"); ``rig_creep``: the motor's
+    and the creep's level (``--rig``, ``--creep``)."""
     from frictionfit.fit import measurement_data
     from frictionfit.models import MeasurementModel
     from frictionfit.whole_fit import fit_recordings
@@ -349,9 +356,10 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     typer.echo(f"fitting {_count(len(items), 'recording channel')} whole, law={law} ...")
     try:
         with stage(f"fitting {_count(len(items), 'recording channel')}"):
-            result = fit_recordings(items, model=model, fix=fixed, rig=rig)
+            result = fit_recordings(items, model=model, fix=fixed, rig=rig_creep[0],
+                                    creep=rig_creep[1])
     except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--fix / --rig") from None
+        raise typer.BadParameter(str(exc), param_hint="--fix / --rig / --creep") from None
     if output.rigs is not None:
         from frictionfit.fit.session import write_session_rigs
 

@@ -171,8 +171,7 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
                 out[i] = row
             else:
                 missing.append(i)
-        blocks = [missing[i:i + (self._block or len(missing))]
-                  for i in range(0, len(missing), self._block or max(len(missing), 1))]
+        blocks = self._blocks(recordings, missing)
         bar = tqdm(total=len(missing), desc=f"{type(self).__name__}", unit="recording",
                    disable=None if len(blocks) > 1 else True)
         for block in blocks:  # each block is one batched extraction, cached as soon as done
@@ -184,6 +183,11 @@ class RecordingFeatures(TransformerMixin, BaseEstimator):
             bar.update(len(block))
         bar.close()
         return out[:, self._exposed()]
+
+    def _blocks(self, recordings: Sequence[Recording], missing: list[int]) -> list[list[int]]:
+        """The batched extractions of the ``missing`` recordings: runs of :attr:`_block`."""
+        size = self._block or max(len(missing), 1)
+        return [missing[i:i + size] for i in range(0, len(missing), size)]
 
     @staticmethod
     def _checked(x: np.ndarray, n_rows: int, n_out: int) -> np.ndarray:

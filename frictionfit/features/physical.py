@@ -13,9 +13,9 @@ does; a mix is an error: the two do not compare), the static
 friction level ``f_static = f_kin + f_static_excess`` (N), and what the fit derives
 (:mod:`frictionfit.fit.derived`): the held force ``f_held`` (N), the peak force ``f_peak``
 (N) and the ``onset_rate`` (N/s) as the sensor sees them, and the stick-slip intensity
-``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); ``relax_frac`` (1), ``tau`` (s) and
-``drag`` (N s/mm, or N s/stroke as ``k``); never the sensor's offset, drift or leak, nor
-the motor's timing.
+``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); with ``relaxation=True`` also
+``relax_frac`` (1), ``tau`` (s) and ``drag`` (N s/mm, or N s/stroke as ``k``); never the
+sensor's offset, drift or leak, nor the rig's motor timing or creep.
 ``with_stderr=True`` adds each one's standard error (of the log10 where logged).
 Each lateral channel (``thumb_y``, ``index_y``, with its finger's rubbing channel) gets
 what :func:`frictionfit.fit.lateral.fit_lateral` finds: the ``gain`` (1, the lateral force
@@ -33,7 +33,10 @@ slope between the command and the peak: loading stiffness times drive speed) and
 ``t_peak`` (s); ``slip_ripple`` (1, the standard deviation of the signal minus its
 25-sample moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
 oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
-50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free.
+50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free. The
+relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are shown only with
+``relaxation=True``: how the force relaxes after a stroke depends on the rig's finger as
+much as on the material.
 
 **Missing values.** A trial whose fit fails (any status but CONVERGED and
 ILL_CONDITIONED, whose values stand though some may be poorly determined; and
@@ -49,6 +52,7 @@ here, they raise a ValueError that says so.
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections.abc import Sequence
 
@@ -96,6 +100,11 @@ MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "
             ("relax_400ms", "1"))
 #: The first six are the basic quantities; the shape quantities follow (``shape=True``).
 N_BASIC = 6
+#: Names of the relaxation quantities (after the channel), shown only with ``relaxation=True``:
+#: fitted ``relax_frac``, ``tau`` and ``drag``; measured ``relaxed_frac``, ``t_relax`` and
+#: ``relax_<ms>ms``.
+_RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)\b|(out|back)_(relaxed_frac|t_relax|"
+                         r"relax_\d+ms)\b)")
 #: Delays after the peak (s) of the normalised relaxation curve ``relax_<ms>ms``.
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is measured.
@@ -169,10 +178,19 @@ class PhysicalFeatures(RecordingFeatures):
         for every recording keeps the parameters' meaning (every recording has the same
         ones).
     rig : {"recording", "session"}, default "recording"
-        Where the motor's profile is fitted: per recording (its features depend on it
-        alone), or once per session: the median over the session's recordings that share
-        a batch (64 recordings; a lone recording has its own), so a recording's
-        features then depend on which recordings are featurised with it.
+        Where the motor's profile is fitted: per recording, or once per session (the median
+        over the session's recordings featurised together).
+    creep : {"session", "recording"}, default "session"
+        Where the finger's creep (the slow relaxation branch's time constant) is fitted:
+        once per session and channel, the median over the session's recordings featurised
+        together (each session is one batch; a recording alone in its session keeps its
+        own), or per recording. With either at ``"session"`` a recording's features depend
+        on the session's recordings featurised with it: featurise a session in one call.
+    relaxation : bool, default False
+        Include the relaxation quantities: fitted ``relax_frac`` and ``tau``, ``drag``, and
+        the measured ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms``. They describe the
+        rig (its finger's creep and play, its motor) as much as the material, so they are
+        left out unless asked for.
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
@@ -198,23 +216,25 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 29  # 29: k and drag per mm of the declared stroke
-    _view_params = ("with_stderr",)  # the stderrs are stored either way
+    _version = 30  # 30: the creep held per session
+    _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
-    #: refilled. With ``rig="session"`` the rig is the median over a block's recordings of
-    #: one session.
+    #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).
     _block = 64
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
-                 model: str = "relaxation2", rig: str = "recording",
-                 decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
-                 with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
-                 wear: bool = False, cache: bool = True):
+                 model: str = "relaxation2", rig: str = "recording", creep: str = "session",
+                 relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
+                 accept_max_steps: bool = True, with_stderr: bool = False,
+                 channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
+                 cache: bool = True):
         self.fitted = fitted
         self.measured = measured
         self.shape = shape
         self.model = model
         self.rig = rig
+        self.creep = creep
+        self.relaxation = relaxation
         self.decimate = decimate
         self.max_steps = max_steps
         self.accept_max_steps = accept_max_steps
@@ -254,8 +274,19 @@ class PhysicalFeatures(RecordingFeatures):
         return []
 
     def _names(self) -> list[str]:
-        stored = self._stored_names()
-        return stored if self.with_stderr else [n for n in stored if _STDERR not in n]
+        return [n for n in self._stored_names()
+                if (self.with_stderr or _STDERR not in n)
+                and (self.relaxation or not _RELAXATION.search(n.partition(":")[2]))]
+
+    def _blocks(self, recordings: Sequence[Recording], missing: list[int]) -> list[list[int]]:
+        """Runs of :attr:`_block` recordings; with a hold at the session's, each session's
+        recordings in one batch (the hold is their median)."""
+        if not self.fitted or (self.rig, self.creep) == ("recording", "recording"):
+            return super()._blocks(recordings, missing)
+        sessions: dict[str, list[int]] = {}
+        for i in missing:
+            sessions.setdefault(str(recordings[i].metadata.get("session")), []).append(i)
+        return list(sessions.values())
 
     def _stored_names(self) -> list[str]:
         names = []
@@ -303,9 +334,9 @@ class PhysicalFeatures(RecordingFeatures):
         stored, names = self._stored_names(), self._names()
         draws = draws.copy()
         for e, name in enumerate(stored):
-            if _STDERR not in name:
-                continue
             value_name = name.replace(_STDERR, " [")
+            if _STDERR not in name or value_name not in names:
+                continue
             j, v = names.index(value_name), stored.index(value_name)
             seen = self.training_rows_[:, j][np.isfinite(self.training_rows_[:, j])]
             spread = np.std(seen) if seen.size > 1 else 0.0
@@ -374,7 +405,8 @@ class PhysicalFeatures(RecordingFeatures):
             return out
         # no second start from the session's profile of the batch: with rig="recording" a
         # recording's row depends on it alone (and is cached by its content)
-        res = fit_recordings(items, model=self.model, rig=self.rig, max_steps=self.max_steps,
+        res = fit_recordings(items, model=self.model, rig=self.rig, creep=self.creep,
+                             max_steps=self.max_steps,
                              fix=None if self.wear else {"wear": 0.0}, refit_rig_outliers=False,
                              progress=False)  # the feature set's own bar counts the batches
         ok = {Status.CONVERGED, Status.ILL_CONDITIONED}
@@ -454,11 +486,13 @@ class FittedFeatures(PhysicalFeatures):
     contact."""
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
-                 model: str = "relaxation2", rig: str = "recording",
-                 decimate: int = 1, max_steps: int = 200, accept_max_steps: bool = True,
-                 with_stderr: bool = False, channels: tuple[str, ...] = RUBBING_CHANNELS,
-                 wear: bool = False, cache: bool = True):
+                 model: str = "relaxation2", rig: str = "recording", creep: str = "session",
+                 relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
+                 accept_max_steps: bool = True, with_stderr: bool = False,
+                 channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
+                 cache: bool = True):
         super().__init__(fitted=fitted, measured=measured, shape=shape, model=model, rig=rig,
-                         decimate=decimate, max_steps=max_steps,
+                         creep=creep, relaxation=relaxation, decimate=decimate,
+                         max_steps=max_steps,
                          accept_max_steps=accept_max_steps, with_stderr=with_stderr,
                          channels=channels, wear=wear, cache=cache)

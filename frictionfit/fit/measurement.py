@@ -39,11 +39,13 @@ from frictionfit.fit._whole_problem import normal_fn, residual_fn, stack_items
 from frictionfit.fit.measurement_data import MeasurementData, measurement_data
 from frictionfit.fit.result import concat_results, take_trials
 from frictionfit.fit.session import (
+    CREEP,
     SESSION_RIG,
     SessionRig,
     estimate_session_rigs,
     held_covariance,
     held_profile,
+    session_creep,
 )
 from frictionfit.fit.solver import BatchedLevenbergMarquardt
 from frictionfit.fit.whole_result import MeasurementFit
@@ -69,6 +71,7 @@ def fit_whole(
     model: MeasurementModel | str = "auto",
     solver: BatchedLevenbergMarquardt = WHOLE_FIT_SOLVER,
     rig: str | Mapping[str, SessionRig] = "recording",
+    creep: str = "session",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
@@ -87,6 +90,8 @@ def fit_whole(
     models = ([MeasurementModel(law) for law in AUTO_LAWS] if model == "auto"
               else [MeasurementModel(model) if isinstance(model, str) else model])
     _check_held(fix, items, models)
+    if creep not in ("session", "recording"):
+        raise ValueError(f"creep must be 'session' or 'recording', not {creep!r}")
     origins = {m.law: origin(m, models) for m in models}
     base = next(origins[m.law] or m for m in models)  # the law fitted from the data
     if u0 is not None and np.shape(u0)[-1] != base.n_params:
@@ -95,21 +100,25 @@ def fit_whole(
     start = time.perf_counter()
     run = _Run(solver, rig, timing, dict(max_steps=max_steps, pool_size=pool_size,
                                           progress=progress))
+    holds = _Holds()
+    if creep == "session" and set(CREEP) <= set(base.param_names) - set(fix or {}):
+        fix = dict(fix or {}) | holds.creep(items, base, held_of(base, fix, models), u0, run)
     base_fix = held_of(base, fix, models)
-    timed, fits = _base_fit(items, base, base_fix, u0, run)
+    timed, fits = _base_fit(items, base, base_fix, u0, run,
+                            held_cov=holds.cov(base, base_fix) if rig == "recording" else None)
     if refit_rig_outliers and rig == "recording" and not set(RIG) & set(base_fix):
         timed, fits = _rig_outliers_refitted(items, timed, fits, base, base_fix, run)
-    held, error, rigs = dict(fix or {}), None, None
-    free_fit = fits
+    held, rigs = dict(fix or {}), None
     if rig != "recording":
         sessions = [str(d.session) for d in timed]
-        rigs = estimate_session_rigs(sessions, free_fit) if rig == "session" else dict(rig)
-        profile, error = held_profile(sessions, free_fit, rigs)
+        rigs = estimate_session_rigs(sessions, fits) if rig == "session" else dict(rig)
+        profile, error = held_profile(sessions, fits, rigs)
+        holds.add(fits, error, SESSION_RIG)
         held |= profile
-        fits = fit_batch(timed, model=base, u0=np.stack(free_fit.u), solver=solver,
+        fits = fit_batch(timed, model=base, u0=np.stack(fits.u), solver=solver,
                          **run.kw, **_broadcast(held_of(base, held, models), len(timed)),
-                         held_cov=held_covariance(base, free_fit, error, held))
-    fits, rows = _other_laws(timed, base, models, origins, fits, run, held, (free_fit, error))
+                         held_cov=holds.cov(base, held))
+    fits, rows = _other_laws(timed, base, models, origins, fits, run, held, holds)
     first, _, bic = by_bic(models, [fits[m.law] for m in models], [rows[m.law] for m in models])
     first.bic_table = bic if len(models) > 1 else None
     first.session_rigs = rigs
@@ -139,15 +148,46 @@ class _Run:
         return with_solver_tolerances(self.solver, FIRST_PASS)
 
 
+class _Holds:
+    """The values a fit holds at its session's (the finger's creep, the motor's profile), with
+    what each adds to the free parameters' covariance: the free fits they were estimated
+    from, their error variances and names."""
+
+    def __init__(self):
+        self.parts: list[tuple[MeasurementFit, np.ndarray, tuple[str, ...]]] = []
+
+    def add(self, free_fit: MeasurementFit, error: np.ndarray, names: Sequence[str]) -> None:
+        self.parts.append((free_fit, error, tuple(names)))
+
+    def creep(self, items: Sequence[MeasurementData], base: MeasurementModel, fix: Mapping,
+              u0: np.ndarray | None, run: _Run) -> dict[str, np.ndarray]:
+        """The finger's creep of each item's session and channel
+        (:func:`~frictionfit.fit.session.session_creep`), from fits of ``base`` with it free
+        (the motor's profile per recording); recorded as held."""
+        _, free = _base_fit(items, base, fix, u0, _Run(run.solver, "recording", run.timing,
+                                                        run.kw))
+        values, error = session_creep([str(d.session) for d in items],
+                                      [d.channel for d in items], free)
+        self.add(free, error, CREEP)
+        return values
+
+    def cov(self, model: MeasurementModel, held: Mapping, rows: np.ndarray | None = None
+            ) -> np.ndarray | None:
+        """What the holds add to ``model``'s free parameters' covariance (of ``rows``), or
+        None where nothing is held at a session's."""
+        parts = [held_covariance(model, free, error, held, rows, names)
+                 for free, error, names in self.parts if set(names) <= set(model.param_names)]
+        return sum(parts) if parts else None
+
+
 def _other_laws(items: Sequence[MeasurementData], base: MeasurementModel,
                 models: Sequence[MeasurementModel], origins: dict, base_fit: MeasurementFit,
-                run: _Run, held: dict, free_error: tuple) -> tuple[dict, dict]:
+                run: _Run, held: dict, holds: _Holds) -> tuple[dict, dict]:
     """Each law of ``models`` but ``base`` (fitted from the data: ``base_fit``), from its
     origin's optimum (:data:`GROWN_FROM`, :data:`~frictionfit.fit._law_choice.SHRUNK_FROM`),
     on the items where it can still be chosen. Returns the fits and the items each is of,
     by law."""
     fits, rows = {base.law: base_fit}, {base.law: np.arange(len(items))}
-    free_fit, error = free_error
     for m in models:
         if m.law in fits:
             continue
@@ -164,19 +204,20 @@ def _other_laws(items: Sequence[MeasurementData], base: MeasurementModel,
             at, model=m, u0=from_optimum(m, at, start_fit),
             **_broadcast(held_of(m, held, models), len(items), rows[m.law]),
             solver=run.solver_for(run.polished),
-            held_cov=None if error is None else held_covariance(
-                m, free_fit, error, held, rows[m.law]),
+            held_cov=holds.cov(m, held, rows[m.law]),
             restart=m.law not in GROWN_FROM, **run.kw)
     return fits, rows
 
 
 def _base_fit(items: Sequence[MeasurementData], base: MeasurementModel, fix: Mapping,
-              u0: np.ndarray | None, run: _Run, first_fix: Mapping | None = None
+              u0: np.ndarray | None, run: _Run, first_fix: Mapping | None = None,
+              held_cov: np.ndarray | None = None
               ) -> tuple[list[MeasurementData], MeasurementFit]:
     """The law fitted from the data (:func:`fit_whole`'s first steps): a first fit on
     blocks merged in pairs (``first_fix``: values held in it alone), each movement's timing
-    found at its optimum (``"movement"``), and a second fit on the full grid from there.
-    Returns the items with their movements' timing and the fit."""
+    found at its optimum (``"movement"``), and a second fit on the full grid from there
+    (``held_cov``: what held values add to its covariance). Returns the items with their
+    movements' timing and the fit."""
     again = run.polished
     coarse = [d.halved() for d in items] if again else items
     # a first fit that a second polishes: looser tolerances, and no statement of its own
@@ -191,7 +232,8 @@ def _base_fit(items: Sequence[MeasurementData], base: MeasurementModel, fix: Map
     return items, fit_batch(items, model=base, u0=np.stack(first.u),
                             **_broadcast(fix, len(items)), **run.kw,
                             **(dict(solver=run.first_pass, final=False)
-                               if run.rig != "recording" else dict(solver=run.solver)))
+                               if run.rig != "recording"
+                               else dict(solver=run.solver, held_cov=held_cov)))
 
 
 #: A fit whose movement duration ``ramp`` lies further from the median of its session's fits
@@ -367,7 +409,7 @@ def _deprecated(old: str, new: str) -> None:
 def fit_measurements(items: Sequence[MeasurementData], **kw) -> MeasurementFit:
     """Deprecated: :func:`frictionfit.fit_recordings` (which also takes prepared items)."""
     _deprecated("fit_measurements", "frictionfit.fit_recordings")
-    return fit_whole(items, **kw)
+    return fit_whole(items, **{"creep": "recording", **kw})
 
 
 def fit_motions(items: Sequence[MeasurementData], result: MeasurementFit, **kw
