@@ -506,7 +506,7 @@ def left_out_scores(ev: Evaluation, key: str) -> pd.DataFrame:
         row = {key: value, "accuracy": float(ev.correct[test].mean()), "n": int(test.sum())}
         if numeric and others:
             lo, hi = min(others), max(others)
-            row["trained_on"] = f"{lo:g}-{hi:g}"
+            row["trained_on"] = f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
             row["where"] = "below" if value < lo else "above" if value > hi else "inside"
         else:
             row["trained_on"] = ",".join(map(str, others))

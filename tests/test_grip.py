@@ -1,4 +1,4 @@
-"""The grip as a measured input: load, load-free taxels, power laws across grips, per-grip scores."""
+"""The grip as a measured input: load, load-free taxels, power laws of the grip, per-grip scores."""
 
 from __future__ import annotations
 
@@ -8,7 +8,14 @@ import pytest
 
 from frictionfit.datasets.fabricslide import PROXIMITY, TAXELS
 from frictionfit.errors import RecordingError
-from frictionfit.features.grip import GripLaw, grip_load, law_support, load_signal, without_load
+from frictionfit.features.grip import (
+    GripLaw,
+    grip_load,
+    law_curve,
+    law_support,
+    load_signal,
+    without_load,
+)
 from frictionfit.recording import Recording
 
 RATE_HZ = 35.6
@@ -99,3 +106,51 @@ def test_law_support_prefers_the_law_that_made_the_data():
     # never a wrong law; the free power law (which holds the truth) at most now and then
     assert all(b in (truth[f], "power") for f, b in chosen)
     assert sum(b == truth[f] for f, b in chosen) >= 0.75 * len(chosen)
+
+
+def test_left_out_scores_say_where_each_left_out_value_lies():
+    from frictionfit.classify import Evaluation, left_out_scores
+
+    pred = pd.DataFrame({"true": list("aabbaabbab"), "predicted": list("aabbabbbbb"),
+                         "pressure": [120] * 4 + [180] * 4 + [250] * 2})
+    ev = Evaluation(accuracy=0.7, macro_f1=0.7, confusion=pd.DataFrame(), predictions=pred)
+    table = left_out_scores(ev, "pressure")
+    assert table.to_dict("list") == {
+        "pressure": [120, 180, 250], "accuracy": [1.0, 0.75, 0.5], "n": [4, 4, 2],
+        "trained_on": ["180-250", "120-250", "120-180"], "where": ["below", "inside", "above"]}
+    with pytest.raises(ValueError, match="the predictions have no 'session' column"):
+        left_out_scores(ev, "session")
+
+
+def test_evaluate_reports_each_left_out_pressure(tmp_path):
+    from typer.testing import CliRunner
+
+    from frictionfit.cli import app
+    from tests.test_fabricslide import write_slide
+
+    for fabric in ("Canvas", "Linen"):
+        for p in (120, 150, 180):
+            for rep in (0, 1, 2):
+                write_slide(tmp_path / f"{fabric}_F{p}_V-100mmps_{rep}.csv", n=60,
+                            rng=np.random.default_rng([p, rep, len(fabric)]))
+    result = CliRunner().invoke(app, [
+        "evaluate", "--dataset", f"fabricslide:{tmp_path}", "--features", "shortcut",
+        "--no-calibrate", "--protocols", "leave-one-pressure-out,leave-one-repetition-out"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    for p, span, where in ((120, "150-180", "below"), (150, "120-180", "inside"),
+                           (180, "120-150", "above")):
+        assert any(f"left out pressure {p} (trained on {span}, {where} the training "
+                   f"pressures): accuracy" in line and "(n 6)" in line for line in lines)
+    assert any("left out repetition 2 (trained on 0-1, above" in line for line in lines)
+    assert lines[-1].startswith("accuracy: ")
+
+
+def test_law_curve_fits_and_evaluates_a_named_law():
+    log_l = np.log([120.0, 150.0, 180.0, 210.0])
+    q = 0.5 + log_l / 3
+    np.testing.assert_allclose(law_curve("hertz", log_l, q, np.log([250.0])),
+                               0.5 + np.log(250.0) / 3, rtol=1e-12)
+    np.testing.assert_allclose(law_curve("power", log_l, q, log_l), q, rtol=1e-12)
+    with pytest.raises(ValueError, match="unknown law 'cubic'; choose from"):
+        law_curve("cubic", log_l, q, log_l)

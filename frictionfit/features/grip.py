@@ -30,8 +30,8 @@ from frictionfit.datasets.fabricslide import TAXELS
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Recording
 
-__all__ = ["LAWS", "GripLaw", "grip_load", "law_support", "load_signal", "steady_part",
-           "without_load"]
+__all__ = ["LAWS", "GripLaw", "grip_load", "law_curve", "law_support", "load_signal",
+           "steady_part", "without_load"]
 
 #: Candidate laws of a quantity against the load L (counts), by name: exponent of L in
 #: ``log q = a + b log L`` (None: fitted), or ``"linear"`` (``q = a + b L``).
@@ -146,6 +146,15 @@ def _law_fit(law, log_l: np.ndarray, q: np.ndarray):
 def _law_predict(law, coef, log_l: np.ndarray) -> np.ndarray:
     a, b = coef
     return a + b * (np.exp(log_l) if law == "linear" else log_l)
+
+
+def law_curve(law: str, log_load: np.ndarray, q: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The law named ``law`` (a key of :data:`LAWS`) fitted to ``q`` against ``log_load``
+    (natural log of counts), by least squares, evaluated at the log loads ``at``."""
+    if law not in LAWS:
+        raise ValueError(f"unknown law {law!r}; choose from {list(LAWS)}")
+    log_load, q = np.asarray(log_load, dtype=np.float64), np.asarray(q, dtype=np.float64)
+    return _law_predict(LAWS[law], _law_fit(LAWS[law], log_load, q), np.asarray(at, float))
 
 
 def law_support(table: pd.DataFrame, quantities: list[str], *, by: str = "fabric",
