@@ -34,6 +34,7 @@ def trusted_types() -> list[str]:
     return sorted({
         *ours,
         "frictionfit.features.sliding.SlidingPhysicalFeatures",
+        "frictionfit.features.grip.GripLaw",
         "frictionfit.classify.DiscriminantProjection",
         "frictionfit.classify.SessionNormalised",
         "frictionfit.calibration.CalibratedPipeline",

@@ -154,3 +154,14 @@ def test_law_curve_fits_and_evaluates_a_named_law():
     np.testing.assert_allclose(law_curve("power", log_l, q, log_l), q, rtol=1e-12)
     with pytest.raises(ValueError, match="unknown law 'cubic'; choose from"):
         law_curve("cubic", log_l, q, log_l)
+
+
+def test_a_model_file_may_hold_a_fitted_grip_law(tmp_path):
+    from frictionfit.model_file import load_model, save_model
+
+    law = GripLaw().fit(np.eye(4), list("aabb"), log_load=np.log([120.0, 150.0, 120.0, 150.0]))
+    from sklearn.svm import SVC
+
+    save_model({"pipeline": SVC(), "grip_law": law}, tmp_path / "m.skops")
+    np.testing.assert_array_equal(load_model(tmp_path / "m.skops")["grip_law"].exponents_,
+                                  law.exponents_)
