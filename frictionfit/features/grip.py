@@ -30,9 +30,11 @@ from frictionfit.datasets.fabricslide import TAXELS
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Recording
 
-__all__ = ["LAWS", "GripLaw", "grip_load", "law_curve", "law_support", "load_signal",
-           "steady_part", "without_load"]
+__all__ = ["LAWS", "RAMP_FRACTION", "GripLaw", "grip_load", "law_curve", "law_support",
+           "load_signal", "steady_part", "without_load"]
 
+#: Fraction of a slide taken by each velocity ramp when the metadata lacks ``ramp_s``.
+RAMP_FRACTION = 0.079
 #: Candidate laws of a quantity against the load L (counts), by name: exponent of L in
 #: ``log q = a + b log L`` (None: fitted), or ``"linear"`` (``q = a + b L``).
 LAWS: dict[str, float | str | None] = {
@@ -45,11 +47,9 @@ LAWS: dict[str, float | str | None] = {
 
 
 def steady_part(rec: Recording) -> np.ndarray:
-    """Where the slide runs at constant speed: outside both velocity ramps (``ramp_s``)."""
-    ramp_s = rec.metadata.get("ramp_s")
-    if ramp_s is None:
-        raise RecordingError("metadata lacks the velocity ramp's duration 'ramp_s' (s)",
-                             path=rec.name)
+    """Where the slide runs at constant speed: outside both velocity ramps (``ramp_s`` s;
+    :data:`RAMP_FRACTION` of the slide each where the metadata lacks it)."""
+    ramp_s = float(rec.metadata.get("ramp_s", RAMP_FRACTION * rec.duration_s))
     return (rec.t >= ramp_s) & (rec.t <= rec.t[-1] - ramp_s)
 
 

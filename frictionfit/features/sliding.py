@@ -52,14 +52,19 @@ from sklearn.utils.validation import check_is_fitted
 from frictionfit.datasets.fabricslide import TAXELS
 from frictionfit.errors import RecordingError, Status
 from frictionfit.features._base import RecordingFeatures
-from frictionfit.features.grip import GripLaw, grip_load, load_signal, steady_part, without_load
+from frictionfit.features.grip import (
+    RAMP_FRACTION,
+    GripLaw,
+    grip_load,
+    load_signal,
+    steady_part,
+    without_load,
+)
 from frictionfit.models.family import PARAMS
 from frictionfit.recording import Recording
 
 __all__ = ["SlidingPhysicalFeatures", "fit_breakaway", "slide_drive", "steady_features"]
 
-#: Fraction of a slide taken by each ramp when the metadata lacks ``ramp_s``.
-RAMP_FRACTION = 0.079
 #: Band (Hz) of the speed-independent grip-loop line, excluded from the stick-slip peak.
 GRIP_LOOP_HZ = (2.0, 2.6)
 #: Bands (Hz) of the per-taxel spectral shape: log-spaced, either side of the grip-loop line.
