@@ -219,6 +219,8 @@ for j, fabric in enumerate(fabrics):
         ax.plot(np.exp(grid), law_curve("power", med["log_load"], med[name], grid), "--",
                 color="C0", lw=0.8)
         ax.set_xscale("log")
+        ax.set_xticks([120, 180, 250], ["120", "180", "250"], minor=False)
+        ax.minorticks_off()
         ax.legend(fontsize=7, loc="best")
         if j == 0:
             ax.set_ylabel(name, fontsize=8)
