@@ -135,3 +135,35 @@ def test_recording_without_speed_is_rejected_by_name(rng):
                                 metadata={"dataset": "fabricslide"})
     with pytest.raises(RecordingError, match="odd: metadata lacks a non-zero sliding 'speed'"):
         steady_features(rec)
+
+
+def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
+    """Texture amplitude proportional to the grip load (exponent 1), two fabrics, three grips."""
+    recs, labels = [], []
+    for fabric, hz in (("Canvas", 1.5), ("Linen", 3.0)):
+        for load in (120.0, 170.0, 240.0):
+            for rep in range(2):
+                rng = np.random.default_rng([int(load), rep, int(hz * 10)])
+                n = int(594.2 / abs(SPEED) * RATE_HZ)
+                t = np.arange(n) / RATE_HZ
+                gains = np.random.default_rng(int(hz * 10)).uniform(0.5, 2.0, 16)  # the fabric's
+                gains = gains * np.tile([1.0, -1.0], 8)
+                gains -= gains.mean()
+                texture = 0.1 * load * ((t * hz) % 1.0)[:, None] * gains
+                taxels = load + texture + rng.normal(0, 0.01 * load, (n, 16))
+                meta = {"label": fabric, "dataset": "fabricslide", "speed": SPEED,
+                        "ramp_s": RAMP_S}
+                recs.append(Recording.from_arrays(taxels, RATE_HZ, list(TAXELS), units="counts",
+                                                  metadata=meta, name=f"{fabric}_{load}_{rep}"))
+                labels.append(fabric)
+    f = SlidingPhysicalFeatures(cache=False)
+    x = f.fit_transform(recs, labels)
+    names = list(f.get_feature_names_out())
+    j = names.index("sliding:log_texture_amplitude [counts]")
+    assert f.grip_law_.exponents_[j] == pytest.approx(1.0, abs=0.05)
+    for fabric in ("Canvas", "Linen"):  # at the reference load, one value per fabric
+        rows = np.asarray(labels) == fabric
+        assert x[rows, j].std() < 0.05
+    assert np.all(SlidingPhysicalFeatures(cache=False).fit(recs).grip_law_.exponents_ == 0)
+    with pytest.raises(ValueError, match="grip='loose'; choose 'scaled' or 'none'"):
+        SlidingPhysicalFeatures(grip="loose", cache=False).fit(recs, labels)
