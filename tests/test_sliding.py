@@ -64,17 +64,31 @@ def test_features_ignore_taxel_offsets_and_proximity():
     offsets = rng.uniform(-80, 300, 16)
     prox = rng.integers(0, 1536, size=(base.n_samples, 2)).astype(float)
     moved = slide(np.random.default_rng(3), offsets=offsets, proximity=prox, name="moved")
-    f = SlidingPhysicalFeatures(contact=True, grip="none", cache=False).fit([base])
-    x = f.transform([base, moved])
-    assert x.shape == (2, len(f.get_feature_names_out()))
+    default = SlidingPhysicalFeatures(cache=False).fit([base])  # the default settings
+    x = default.transform([base, moved])
+    assert x.shape == (2, len(default.get_feature_names_out())) == (2, 6 + 16 + 8 * 16)
     assert np.isfinite(x).all()
+    np.testing.assert_allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
+    f = SlidingPhysicalFeatures(contact=True, cache=False).fit([base])  # and the fit columns
+    x = f.transform([base, moved])
     np.testing.assert_allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
     names = list(f.get_feature_names_out())
     assert names[:2] == ["sliding:log_loading_stiffness [1/mm]",
                          "sliding:log_static_kinetic_ratio [1]"]
     assert len(set(names)) == len(names) == 11 + 6 + 16 + 8 * 16
-    default = SlidingPhysicalFeatures(cache=False).fit([base])  # grip scaled, no fit columns
     assert list(default.get_feature_names_out()) == names[11:]
+
+
+def test_the_opt_in_grip_law_reads_the_offset_moved_level():
+    """grip="scaled" reads the taxels' level, which offsets move: its values move too."""
+    base = slide(np.random.default_rng(3))
+    moved = slide(np.random.default_rng(3), offsets=np.full(16, 100.0), name="moved")
+    recs = [slide(np.random.default_rng(s), offsets=np.full(16, 30.0 * s), name=f"r{s}")
+            for s in range(4)]
+    scaled = SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs, list("aabb"))
+    assert np.any(scaled.grip_law_.exponents_ != 0)
+    x = scaled.transform([base, moved])
+    assert not np.allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
 
 
 @pytest.mark.parametrize("cache", [False, True])
@@ -156,7 +170,7 @@ def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
                 recs.append(Recording.from_arrays(taxels, RATE_HZ, list(TAXELS), units="counts",
                                                   metadata=meta, name=f"{fabric}_{load}_{rep}"))
                 labels.append(fabric)
-    f = SlidingPhysicalFeatures(cache=False)
+    f = SlidingPhysicalFeatures(grip="scaled", cache=False)
     x = f.fit_transform(recs, labels)
     names = list(f.get_feature_names_out())
     j = names.index("sliding:log_texture_amplitude [counts]")
@@ -164,6 +178,8 @@ def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
     for fabric in ("Canvas", "Linen"):  # at the reference load, one value per fabric
         rows = np.asarray(labels) == fabric
         assert x[rows, j].std() < 0.05
-    assert np.all(SlidingPhysicalFeatures(cache=False).fit(recs).grip_law_.exponents_ == 0)
+    assert np.all(SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs)
+                  .grip_law_.exponents_ == 0)
+    assert SlidingPhysicalFeatures(cache=False).fit(recs, labels).grip_law_ is None
     with pytest.raises(ValueError, match="grip='loose'; choose 'scaled' or 'none'"):
         SlidingPhysicalFeatures(grip="loose", cache=False).fit(recs, labels)

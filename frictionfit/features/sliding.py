@@ -1,18 +1,21 @@
-"""Physical features of a FabricSlide slide: texture beyond the grip, scaled by the grip.
+"""Physical features of a FabricSlide slide: texture beyond the grip, optionally scaled by it.
 
 **The grip is measured, not a class.** The grip loop regulates the taxels' trimmed
 mean, so the taxels measure the normal load (:mod:`frictionfit.features.grip`): its
 level (the grip load, counts) and its variation in time as the loop re-commands the
 gripper (the mean over taxels), which every taxel follows with its own gain. The
-texture features are computed from the taxels without that response, and the
-default ``grip="scaled"`` brings each feature to a reference load by a power law of
-the grip load whose exponent is fitted within the fabrics across the training grips
-(:class:`~frictionfit.features.grip.GripLaw`): a new grip is read through the law.
+texture features are computed from the taxels without that response (the default,
+``grip="none"``: every value unchanged by a constant offset on any taxel). The opt-in
+``grip="scaled"`` brings each feature to a reference load by a power law of the grip
+load whose exponent is fitted within the fabrics across the training grips
+(:class:`~frictionfit.features.grip.GripLaw`), so a new grip is read through the law;
+the grip load is the taxels' level, which a constant offset on a taxel moves, so the
+scaled features are not offset-invariant.
 
 **Texture, not mounting.** Each taxel's own mean (or linear trend, in the steady part)
 is removed and amplitudes are relative to a taxel's own dynamic range, so a constant
-offset added to any taxel changes no texture value (only the grip load, through the
-scaling), and the proximity words are never read.
+offset added to any taxel changes no texture value (with ``grip="scaled"``, the grip
+load moves and the scaled values with it), and the proximity words are never read.
 
 **Slide model (``contact=True`` exposes it; always computed).** The observable is the
 first principal component (PC1) of the centred taxels (sign: loadings sum positive)
@@ -267,15 +270,16 @@ def _fit_row(res, row: int, sign: float, total_r2: float, span: float) -> np.nda
 
 
 class SlidingPhysicalFeatures(RecordingFeatures):
-    """Slide-model fit and stick-slip statistics of FabricSlide slides, scaled by the grip.
+    """Slide-model fit and stick-slip statistics of FabricSlide slides, beyond the grip.
 
-    Blind to the proximity words; every value but the grip load is unchanged by a
-    constant offset on any taxel (see the module docstring for the definitions and
-    units). Stiffness, ratio, slip length and relaxation time are given as natural logs.
-    With ``grip="scaled"`` each feature is brought to the training data's reference
-    load by a power law of the measured grip load, its exponent fitted within the
-    classes across the training grips (:class:`~frictionfit.features.grip.GripLaw`);
-    ``fit`` then needs the classes ``y`` (without them the exponents are zero).
+    Blind to the proximity words; with the default ``grip="none"`` every value is
+    unchanged by a constant offset on any taxel (see the module docstring for the
+    definitions and units). Stiffness, ratio, slip length and relaxation time are given
+    as natural logs. With ``grip="scaled"`` each feature is brought to the training
+    data's reference load by a power law of the measured grip load (the taxels' level,
+    moved by offsets), its exponent fitted within the classes across the training grips
+    (:class:`~frictionfit.features.grip.GripLaw`); ``fit`` then needs the classes ``y``
+    (without them the exponents are zero).
 
     Parameters
     ----------
@@ -284,22 +288,23 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     contact : bool, default False
         Also give the slide model's fitted parameters and fit statistics (``_FIT_NAMES``)
         as features; they are always computed (and cached), so switching costs no fit.
-    grip : {"scaled", "none"}, default "scaled"
-        Bring the features to a reference load by their fitted laws, or leave them as
-        measured.
+    grip : {"none", "scaled"}, default "none"
+        Leave the features as measured (offset-invariant), or bring them to a reference
+        load by their fitted laws of the grip load (not offset-invariant).
     cache : bool, default True
         Cache rows per recording content (see :mod:`frictionfit.features._base`).
 
     Attributes
     ----------
     grip_law_ : GripLaw or None
-        The fitted exponents (``grip_law_.exponents_``, one per feature).
+        With ``grip="scaled"``, the fitted exponents (``grip_law_.exponents_``, one per
+        feature); None otherwise.
     """
 
     _version = 4
     _view_params = ("contact", "grip")
 
-    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "scaled",
+    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "none",
                  cache: bool = True):
         self.max_steps = max_steps
         self.contact = contact
