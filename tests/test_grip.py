@@ -10,6 +10,7 @@ from frictionfit.datasets.fabricslide import PROXIMITY, TAXELS
 from frictionfit.errors import RecordingError
 from frictionfit.features.grip import (
     GripLaw,
+    breakaway_shift,
     grip_load,
     law_curve,
     law_support,
@@ -165,3 +166,29 @@ def test_a_model_file_may_hold_a_fitted_grip_law(tmp_path):
     save_model({"pipeline": SVC(), "grip_law": law}, tmp_path / "m.skops")
     np.testing.assert_array_equal(load_model(tmp_path / "m.skops")["grip_law"].exponents_,
                                   law.exponents_)
+
+
+def test_breakaway_shift_grows_with_the_load_and_ignores_offsets():
+    """Shear shifting load between taxels (gains summing to zero) as the slide starts,
+    0.2 of the grip load (friction-like), on top of a level and a common swing."""
+    rng = np.random.default_rng(5)
+    gains = rng.uniform(0.5, 1.5, 16) * np.tile([1.0, -1.0], 8)
+    gains -= gains.mean()
+    shifts = []
+    for load in (120.0, 240.0):
+        rec = slide(load, np.random.default_rng(6))
+        x = np.column_stack([rec.channel(c) for c in TAXELS])
+        shear = 0.2 * load * np.minimum(rec.t / rec.metadata["ramp_s"], 1.0)
+        rec = Recording.from_arrays(x + shear[:, None] * gains, RATE_HZ, list(TAXELS),
+                                    units="counts", metadata=rec.metadata, name=rec.name)
+        shifts.append(breakaway_shift(rec))
+        moved = Recording.from_arrays(rec.samples + rng.uniform(-80, 300, 16), RATE_HZ,
+                                      list(TAXELS), units="counts", metadata=rec.metadata)
+        assert breakaway_shift(moved) == pytest.approx(shifts[-1], rel=1e-9)
+    # the shear reaches 0.2 L; the first 3 % of the slide see ~a fifth of it
+    assert np.log(shifts[1] / shifts[0]) / np.log(2.0) == pytest.approx(1.0, abs=0.1)
+    assert shifts[0] == pytest.approx(0.2 * 120 * np.linalg.norm(gains), rel=0.3)
+    flat = Recording.from_arrays(np.ones((200, 16)), RATE_HZ, list(TAXELS), units="counts",
+                                 metadata=rec.metadata, name="flat")
+    with pytest.raises(RecordingError, match="flat: breakaway shift 0 counts is not positive"):
+        breakaway_shift(flat)

@@ -64,7 +64,9 @@ def test_features_ignore_taxel_offsets_and_proximity():
     offsets = rng.uniform(-80, 300, 16)
     prox = rng.integers(0, 1536, size=(base.n_samples, 2)).astype(float)
     moved = slide(np.random.default_rng(3), offsets=offsets, proximity=prox, name="moved")
-    default = SlidingPhysicalFeatures(cache=False).fit([base])  # the default settings
+    others = [slide(np.random.default_rng(s), name=f"other{s}") for s in (4, 5, 6)]
+    default = SlidingPhysicalFeatures(cache=False).fit([base, *others], list("aabb"))
+    assert np.count_nonzero(default.grip_law_.exponents_) > 100  # the default grip law acts
     x = default.transform([base, moved])
     assert x.shape == (2, len(default.get_feature_names_out())) == (2, 6 + 16 + 8 * 16)
     assert np.isfinite(x).all()
@@ -180,6 +182,7 @@ def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
         assert x[rows, j].std() < 0.05
     assert np.all(SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs)
                   .grip_law_.exponents_ == 0)
-    assert SlidingPhysicalFeatures(cache=False).fit(recs, labels).grip_law_ is None
-    with pytest.raises(ValueError, match="grip='loose'; choose 'scaled' or 'none'"):
+    assert SlidingPhysicalFeatures(grip="none", cache=False).fit(recs, labels).grip_law_ is None
+    with pytest.raises(ValueError, match=r"grip='loose'; choose from \['breakaway', 'scaled', "
+                                         r"'none'\]"):
         SlidingPhysicalFeatures(grip="loose", cache=False).fit(recs, labels)

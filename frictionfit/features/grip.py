@@ -10,6 +10,14 @@ to it, leaving what the taxels do beyond following the load (the texture). The
 variation and the residual are unchanged by a constant added to any taxel; the
 load level is not (it is the level itself).
 
+**An offset-free measure of the load.** When the slide starts, the shear the fabric
+exerts shifts load between the taxels: each taxel's mean over the steady part minus
+its mean over the first :data:`BREAKAWAY_FRACTION` of the slide (while the finger still
+sticks and starts to move), with the change common to all taxels removed, is the
+breakaway shift (:func:`breakaway_shift`, counts). A friction-like quantity, it grows
+with the normal load, and as a difference of each taxel with itself it is unchanged by
+a constant added to any taxel.
+
 **Scaling laws.** A quantity ``q`` measured at loads ``L`` follows a power law
 ``q = c L^b`` (``log q`` linear in ``log L``). :class:`GripLaw` fits one exponent per
 quantity, common to the classes and fitted within each class across the training
@@ -30,11 +38,15 @@ from frictionfit.datasets.fabricslide import TAXELS
 from frictionfit.errors import RecordingError
 from frictionfit.recording import Recording
 
-__all__ = ["LAWS", "RAMP_FRACTION", "GripLaw", "grip_load", "law_curve", "law_support",
-           "load_signal", "steady_part", "without_load"]
+__all__ = ["BREAKAWAY_FRACTION", "LAWS", "RAMP_FRACTION", "GripLaw", "breakaway_shift",
+           "grip_load", "law_curve", "law_support", "load_signal", "steady_part",
+           "without_load"]
 
 #: Fraction of a slide taken by each velocity ramp when the metadata lacks ``ramp_s``.
 RAMP_FRACTION = 0.079
+#: Fraction of a slide (from its start) whose taxel means are the reference of the
+#: breakaway shift.
+BREAKAWAY_FRACTION = 0.03
 #: Candidate laws of a quantity against the load L (counts), by name: exponent of L in
 #: ``log q = a + b log L`` (None: fitted), or ``"linear"`` (``q = a + b L``).
 LAWS: dict[str, float | str | None] = {
@@ -67,6 +79,23 @@ def grip_load(rec: Recording) -> float:
     if not np.isfinite(load) or load <= 0:
         raise RecordingError(f"grip load {load:.3g} counts is not positive", path=rec.name)
     return load
+
+
+def breakaway_shift(rec: Recording) -> float:
+    """The load shifted between the taxels as the slide starts (counts): the Euclidean norm
+    over the taxels of (steady-part mean minus mean over the first
+    :data:`BREAKAWAY_FRACTION` of the samples, at least 3), the mean over taxels removed."""
+    keep = steady_part(rec)
+    x = np.column_stack([rec.channel(c) for c in TAXELS])
+    start = max(3, int(round(BREAKAWAY_FRACTION * x.shape[0])))
+    if keep.sum() < 2 or start >= x.shape[0]:
+        raise RecordingError("too few samples to measure the breakaway shift", path=rec.name)
+    d = x[keep].mean(axis=0) - x[:start].mean(axis=0)
+    shift = float(np.linalg.norm(d - d.mean()))
+    if not np.isfinite(shift) or shift <= 0:
+        raise RecordingError(f"breakaway shift {shift:.3g} counts is not positive",
+                             path=rec.name)
+    return shift
 
 
 def load_signal(x: np.ndarray) -> np.ndarray:

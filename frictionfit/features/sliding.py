@@ -1,21 +1,23 @@
-"""Physical features of a FabricSlide slide: texture beyond the grip, optionally scaled by it.
+"""Physical features of a FabricSlide slide: texture beyond the grip, scaled by the grip.
 
 **The grip is measured, not a class.** The grip loop regulates the taxels' trimmed
 mean, so the taxels measure the normal load (:mod:`frictionfit.features.grip`): its
 level (the grip load, counts) and its variation in time as the loop re-commands the
 gripper (the mean over taxels), which every taxel follows with its own gain. The
-texture features are computed from the taxels without that response (the default,
-``grip="none"``: every value unchanged by a constant offset on any taxel). The opt-in
-``grip="scaled"`` brings each feature to a reference load by a power law of the grip
-load whose exponent is fitted within the fabrics across the training grips
-(:class:`~frictionfit.features.grip.GripLaw`), so a new grip is read through the law;
-the grip load is the taxels' level, which a constant offset on a taxel moves, so the
-scaled features are not offset-invariant.
+texture features are computed from the taxels without that response, and each is
+brought to a reference load by a power law whose exponent is fitted within the fabrics
+across the training grips (:class:`~frictionfit.features.grip.GripLaw`), so a new
+grip is read through the law. The default ``grip="breakaway"`` measures the load by
+the breakaway shift (:func:`~frictionfit.features.grip.breakaway_shift`: the load the
+starting slide shifts between the taxels, friction-like), which a constant offset on a
+taxel does not move; ``grip="scaled"`` by the grip load (the taxels' level), which it
+does; ``grip="none"`` leaves the features as measured.
 
 **Texture, not mounting.** Each taxel's own mean (or linear trend, in the steady part)
 is removed and amplitudes are relative to a taxel's own dynamic range, so a constant
-offset added to any taxel changes no texture value (with ``grip="scaled"``, the grip
-load moves and the scaled values with it), and the proximity words are never read.
+offset added to any taxel changes no texture value and no breakaway shift (with
+``grip="scaled"``, the grip load moves and the scaled values with it), and the
+proximity words are never read.
 
 **Slide model (``contact=True`` exposes it; always computed).** The observable is the
 first principal component (PC1) of the centred taxels (sign: loadings sum positive)
@@ -58,6 +60,7 @@ from frictionfit.features._base import RecordingFeatures
 from frictionfit.features.grip import (
     RAMP_FRACTION,
     GripLaw,
+    breakaway_shift,
     grip_load,
     load_signal,
     steady_part,
@@ -73,6 +76,8 @@ GRIP_LOOP_HZ = (2.0, 2.6)
 #: Bands (Hz) of the per-taxel spectral shape: log-spaced, either side of the grip-loop line.
 BANDS_HZ = ((0.25, 0.42), (0.42, 0.72), (0.72, 1.23), (1.23, 2.0),
             (2.6, 3.55), (3.55, 6.04), (6.04, 10.3), (10.3, 17.5))
+#: Measures of the load (counts) a feature's grip law is fitted against, by ``grip`` name.
+GRIP_MEASURES = {"breakaway": breakaway_shift, "scaled": grip_load, "none": None}
 CONTACT_MODEL = "relaxation"
 #: Points of the whole-slide observable the contact model is fitted to.
 N_FIT = 128
@@ -272,12 +277,12 @@ def _fit_row(res, row: int, sign: float, total_r2: float, span: float) -> np.nda
 class SlidingPhysicalFeatures(RecordingFeatures):
     """Slide-model fit and stick-slip statistics of FabricSlide slides, beyond the grip.
 
-    Blind to the proximity words; with the default ``grip="none"`` every value is
-    unchanged by a constant offset on any taxel (see the module docstring for the
-    definitions and units). Stiffness, ratio, slip length and relaxation time are given
-    as natural logs. With ``grip="scaled"`` each feature is brought to the training
-    data's reference load by a power law of the measured grip load (the taxels' level,
-    moved by offsets), its exponent fitted within the classes across the training grips
+    Blind to the proximity words; with ``grip="breakaway"`` (the default) or ``"none"``
+    every value is unchanged by a constant offset on any taxel (see the module docstring
+    for the definitions and units). Stiffness, ratio, slip length and relaxation time
+    are given as natural logs. Unless ``grip="none"``, each feature is brought to the
+    training data's reference load by a power law of a measure of the load, its exponent
+    fitted within the classes across the training grips
     (:class:`~frictionfit.features.grip.GripLaw`); ``fit`` then needs the classes ``y``
     (without them the exponents are zero).
 
@@ -288,23 +293,24 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     contact : bool, default False
         Also give the slide model's fitted parameters and fit statistics (``_FIT_NAMES``)
         as features; they are always computed (and cached), so switching costs no fit.
-    grip : {"none", "scaled"}, default "none"
-        Leave the features as measured (offset-invariant), or bring them to a reference
-        load by their fitted laws of the grip load (not offset-invariant).
+    grip : {"breakaway", "scaled", "none"}, default "breakaway"
+        The measure of the load the features' laws are fitted against: the breakaway
+        shift (counts; offset-invariant), the grip load (counts; the taxels' level, not
+        offset-invariant); or none (the features as measured).
     cache : bool, default True
         Cache rows per recording content (see :mod:`frictionfit.features._base`).
 
     Attributes
     ----------
     grip_law_ : GripLaw or None
-        With ``grip="scaled"``, the fitted exponents (``grip_law_.exponents_``, one per
-        feature); None otherwise.
+        The fitted exponents (``grip_law_.exponents_``, one per feature); None with
+        ``grip="none"``.
     """
 
     _version = 4
     _view_params = ("contact", "grip")
 
-    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "none",
+    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "breakaway",
                  cache: bool = True):
         self.max_steps = max_steps
         self.contact = contact
@@ -316,14 +322,15 @@ class SlidingPhysicalFeatures(RecordingFeatures):
         return self
 
     def fit_transform(self, X: Sequence[Recording], y=None, **fit_params) -> np.ndarray:
-        if self.grip not in ("scaled", "none"):
-            raise ValueError(f"grip={self.grip!r}; choose 'scaled' or 'none'")
+        if self.grip not in GRIP_MEASURES:
+            raise ValueError(f"grip={self.grip!r}; choose from {list(GRIP_MEASURES)}")
         X = list(X)
         rows = self._filled_rows(X, fit=True)
         self.grip_law_ = None
-        if self.grip == "scaled":
-            self.grip_law_ = GripLaw().fit(rows, y, log_load=_log_loads(X))
-            return self.grip_law_.transform(rows, log_load=_log_loads(X))
+        if self.grip != "none":
+            log_load = _log_loads(X, self.grip)
+            self.grip_law_ = GripLaw().fit(rows, y, log_load=log_load)
+            return self.grip_law_.transform(rows, log_load=log_load)
         return rows
 
     def transform(self, X: Sequence[Recording]) -> np.ndarray:
@@ -332,7 +339,7 @@ class SlidingPhysicalFeatures(RecordingFeatures):
         rows = self._filled_rows(X, fit=False)
         if getattr(self, "grip_law_", None) is None:
             return rows
-        return self.grip_law_.transform(rows, log_load=_log_loads(X))
+        return self.grip_law_.transform(rows, log_load=_log_loads(X, self.grip))
 
     def _filled_rows(self, X: list[Recording], fit: bool) -> np.ndarray:
         rows = self._rows(X)
@@ -356,5 +363,5 @@ class SlidingPhysicalFeatures(RecordingFeatures):
         return names if self.contact else names[len(_FIT_NAMES):]
 
 
-def _log_loads(recordings: Sequence[Recording]) -> np.ndarray:
-    return np.log([grip_load(r) for r in recordings])
+def _log_loads(recordings: Sequence[Recording], grip: str) -> np.ndarray:
+    return np.log([GRIP_MEASURES[grip](r) for r in recordings])
