@@ -11,7 +11,7 @@ from frictionfit.cli._load import STRICT_HELP, check_writable, problems_of, writ
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
                  "law fitted to each recording), sliding (a FabricSlide slide's texture beyond "
-                 "the grip, offset-invariant), handcrafted, fftbins, "
+                 "the grip, read through power laws of its breakaway shift), handcrafted, fftbins, "
                  "spectral, raw, gesture, touch, shortcut; a comma list concatenates them. "
                  "Default by dataset kind: recordings "
                  "physical,fitted (the most accurate and best calibrated; a fit per "
