@@ -53,6 +53,7 @@ __all__ = [
     "evaluate",
     "evaluate_incremental",
     "labels_of",
+    "left_out_scores",
     "make_classifier",
     "make_pipeline",
     "projection_for",
@@ -490,6 +491,38 @@ def _scored(pred: pd.DataFrame, fold_acc: list[float],
         predictions=pred, breakdown=breakdown, fold_accuracy=fold_acc,
         probabilities=probabilities,
     )
+
+
+def left_out_scores(ev: Evaluation, key: str) -> pd.DataFrame:
+    """Per value of ``key`` left out by a leave-one-``key``-out evaluation: its own scores.
+
+    Returns
+    -------
+    DataFrame
+        One row per left-out value, in order: ``key``, ``accuracy``, ``n`` (test
+        recordings), ``trained_on`` (the other values: ``"lo-hi"`` when numeric, else a
+        comma list) and ``where`` (``"below"``, ``"inside"`` or ``"above"`` the training
+        values when numeric: extrapolation or interpolation; else ``""``).
+    """
+    if key not in ev.predictions:
+        raise ValueError(f"the predictions have no {key!r} column; per left-out value "
+                         f"scores need it (one of {list(CONDITIONS)})")
+    values = pd.unique(ev.predictions[key])
+    numeric = all(isinstance(v, (int, float, np.integer, np.floating)) for v in values)
+    rows = []
+    for value in (sorted(values) if numeric else values):
+        test = (ev.predictions[key] == value).to_numpy()
+        others = [v for v in values if v != value]
+        row = {key: value, "accuracy": float(ev.correct[test].mean()), "n": int(test.sum())}
+        if numeric and others:
+            lo, hi = min(others), max(others)
+            row["trained_on"] = f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
+            row["where"] = "below" if value < lo else "above" if value > hi else "inside"
+        else:
+            row["trained_on"] = ",".join(map(str, others))
+            row["where"] = ""
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def evaluate_incremental(recordings: Sequence[Recording], features="spectral",

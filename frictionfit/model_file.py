@@ -35,6 +35,7 @@ def trusted_types() -> list[str]:
     return sorted({
         *ours,
         "frictionfit.features.sliding.SlidingPhysicalFeatures",
+        "frictionfit.features.grip.GripLaw",
         "frictionfit.classify.DiscriminantProjection",
         "frictionfit.classify.SessionNormalised",
         "frictionfit.calibration.CalibratedPipeline",

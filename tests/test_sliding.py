@@ -17,13 +17,15 @@ STICK_SLIP_HZ = 1.5
 
 
 def slide(rng, offsets=None, proximity=None, name="Canvas_F150_V-100mmps_0") -> Recording:
-    """A synthetic slide: sawtooth stick-slip (slow loading, fast slip) on every taxel."""
+    """A synthetic slide: sawtooth stick-slip (slow loading, fast slip) shifting pressure
+    between taxels (gains of both signs, summing to zero) under a common breakaway load."""
     n = int(594.2 / abs(SPEED) * RATE_HZ)
     t = np.arange(n) / RATE_HZ
     travel = slide_drive(t, SPEED, RAMP_S)
     breakaway = 40 * np.minimum(travel / 5.0, 1.0) * (1 + np.exp(-travel / 4.0))
     saw = (t * STICK_SLIP_HZ) % 1.0
-    gains = rng.uniform(0.5, 2.0, 16)
+    gains = rng.uniform(0.5, 2.0, 16) * np.tile([1.0, -1.0], 8)
+    gains -= gains.mean()
     taxels = 150 + breakaway[:, None] + 15 * saw[:, None] * gains + rng.normal(0, 1, (n, 16))
     if offsets is not None:
         taxels = taxels + offsets
@@ -62,15 +64,33 @@ def test_features_ignore_taxel_offsets_and_proximity():
     offsets = rng.uniform(-80, 300, 16)
     prox = rng.integers(0, 1536, size=(base.n_samples, 2)).astype(float)
     moved = slide(np.random.default_rng(3), offsets=offsets, proximity=prox, name="moved")
-    f = SlidingPhysicalFeatures(cache=False).fit([base])
-    x = f.transform([base, moved])
-    assert x.shape == (2, len(f.get_feature_names_out()))
+    others = [slide(np.random.default_rng(s), name=f"other{s}") for s in (4, 5, 6)]
+    default = SlidingPhysicalFeatures(cache=False).fit([base, *others], list("aabb"))
+    assert np.count_nonzero(default.grip_law_.exponents_) > 100  # the default grip law acts
+    x = default.transform([base, moved])
+    assert x.shape == (2, len(default.get_feature_names_out())) == (2, 6 + 16 + 8 * 16)
     assert np.isfinite(x).all()
+    np.testing.assert_allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
+    f = SlidingPhysicalFeatures(contact=True, cache=False).fit([base])  # and the fit columns
+    x = f.transform([base, moved])
     np.testing.assert_allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
     names = list(f.get_feature_names_out())
     assert names[:2] == ["sliding:log_loading_stiffness [1/mm]",
                          "sliding:log_static_kinetic_ratio [1]"]
-    assert len(set(names)) == len(names) == 9 + 5 + 16 + 8 * 16
+    assert len(set(names)) == len(names) == 11 + 6 + 16 + 8 * 16
+    assert list(default.get_feature_names_out()) == names[11:]
+
+
+def test_the_opt_in_grip_law_reads_the_offset_moved_level():
+    """grip="scaled" reads the taxels' level, which offsets move: its values move too."""
+    base = slide(np.random.default_rng(3))
+    moved = slide(np.random.default_rng(3), offsets=np.full(16, 100.0), name="moved")
+    recs = [slide(np.random.default_rng(s), offsets=np.full(16, 30.0 * s), name=f"r{s}")
+            for s in range(4)]
+    scaled = SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs, list("aabb"))
+    assert np.any(scaled.grip_law_.exponents_ != 0)
+    x = scaled.transform([base, moved])
+    assert not np.allclose(x[1], x[0], rtol=1e-6, atol=1e-8)
 
 
 @pytest.mark.parametrize("cache", [False, True])
@@ -99,14 +119,24 @@ def test_contact_fit_recovers_a_simulated_slide():
     t = np.arange(n) / RATE_HZ
     force = np.asarray(contact_force(jnp.asarray(slide_drive(t, SPEED, RAMP_S)), 1 / RATE_HZ,
                                      **truth))
-    taxels = rng.uniform(50, 300, 16) + 20 * force[:, None] * rng.uniform(0.5, 2.0, 16)
+    # The shear shows as a pressure shift between taxels (gains summing to zero) under a
+    # load the grip loop swings (every taxel alike): the load term must take only the swing.
+    gains = np.r_[rng.uniform(1.0, 2.0, 8), -rng.uniform(0.5, 1.0, 8)]
+    gains[-1] -= gains.sum()
+    swing = 3.0 * np.sin(2 * np.pi * 0.5 * t)
+    taxels = (rng.uniform(50, 300, 16) + 20 * force[:, None] * gains
+              + swing[:, None])
     meta = {"dataset": "fabricslide", "speed": SPEED, "ramp_s": RAMP_S}
     rec = Recording.from_arrays(taxels, RATE_HZ, list(TAXELS), units="counts", metadata=meta)
-    log_k, log_ratio, log_slip, log_tau, frac, _, sign, r2, ok = fit_breakaway([rec])[0]
-    span = np.subtract(*np.percentile(force - force.mean(), [95, 5]))
+    log_k, log_ratio, log_slip, log_tau, frac, _, sign, r2, ok, log_span, law_r2 = \
+        fit_breakaway([rec])[0]
+    # PC1 = 20 (gains . loadings) x the force; the observable is PC1 over its range
+    loadings = np.linalg.svd(taxels - taxels.mean(axis=0), full_matrices=False)[2][0]
+    span = np.exp(log_span) / (20 * np.abs(gains @ loadings))
+    assert law_r2 > 0.99
     # The fit sees the force block-averaged onto 128 points (dt 0.047 s instead of 0.028 s):
     # a few per cent of bias in the fast parameters is expected, hence rtol 0.1.
-    assert (sign, ok) == (1.0, 1.0) and r2 > 0.99
+    assert abs(sign) == 1.0 and ok == 1.0 and r2 > 0.99
     assert np.exp(log_k) == pytest.approx(truth["k"] / span, rel=0.1)
     # measured 1.45: block averaging flattens the static peak, so the ratio reads low
     assert np.exp(log_ratio) == pytest.approx(1.6, rel=0.15)
@@ -121,3 +151,38 @@ def test_recording_without_speed_is_rejected_by_name(rng):
                                 metadata={"dataset": "fabricslide"})
     with pytest.raises(RecordingError, match="odd: metadata lacks a non-zero sliding 'speed'"):
         steady_features(rec)
+
+
+def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
+    """Texture amplitude proportional to the grip load (exponent 1), two fabrics, three grips."""
+    recs, labels = [], []
+    for fabric, hz in (("Canvas", 1.5), ("Linen", 3.0)):
+        for load in (120.0, 170.0, 240.0):
+            for rep in range(2):
+                rng = np.random.default_rng([int(load), rep, int(hz * 10)])
+                n = int(594.2 / abs(SPEED) * RATE_HZ)
+                t = np.arange(n) / RATE_HZ
+                gains = np.random.default_rng(int(hz * 10)).uniform(0.5, 2.0, 16)  # the fabric's
+                gains = gains * np.tile([1.0, -1.0], 8)
+                gains -= gains.mean()
+                texture = 0.1 * load * ((t * hz) % 1.0)[:, None] * gains
+                taxels = load + texture + rng.normal(0, 0.01 * load, (n, 16))
+                meta = {"label": fabric, "dataset": "fabricslide", "speed": SPEED,
+                        "ramp_s": RAMP_S}
+                recs.append(Recording.from_arrays(taxels, RATE_HZ, list(TAXELS), units="counts",
+                                                  metadata=meta, name=f"{fabric}_{load}_{rep}"))
+                labels.append(fabric)
+    f = SlidingPhysicalFeatures(grip="scaled", cache=False)
+    x = f.fit_transform(recs, labels)
+    names = list(f.get_feature_names_out())
+    j = names.index("sliding:log_texture_amplitude [counts]")
+    assert f.grip_law_.exponents_[j] == pytest.approx(1.0, abs=0.05)
+    for fabric in ("Canvas", "Linen"):  # at the reference load, one value per fabric
+        rows = np.asarray(labels) == fabric
+        assert x[rows, j].std() < 0.05
+    assert np.all(SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs)
+                  .grip_law_.exponents_ == 0)
+    assert SlidingPhysicalFeatures(grip="none", cache=False).fit(recs, labels).grip_law_ is None
+    with pytest.raises(ValueError, match=r"grip='loose'; choose from \['breakaway', 'scaled', "
+                                         r"'none'\]"):
+        SlidingPhysicalFeatures(grip="loose", cache=False).fit(recs, labels)

@@ -18,9 +18,10 @@ from frictionfit.cli._load import (
 
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
-                 "law fitted to each recording), sliding (a FabricSlide slide's breakaway and "
-                 "texture), handcrafted, fftbins, spectral, raw, gesture, touch, shortcut; a "
-                 "comma list concatenates them. Default by dataset kind: recordings "
+                 "law fitted to each recording), sliding (a FabricSlide slide's texture beyond "
+                 "the grip, read through power laws of its breakaway shift), handcrafted, fftbins, "
+                 "spectral, raw, gesture, touch, shortcut; a comma list concatenates them. "
+                 "Default by dataset kind: recordings "
                  "physical,fitted (the most accurate and best calibrated; a fit per "
                  "recording, about 0.15 s each on 2 cores once compiled), fabricslide "
                  "sliding, gesture gesture.")
@@ -329,7 +330,10 @@ def evaluate(
                               "--classifiers, --protocols lists)."),
     feature_sets: str = typer.Option(None, help="With --all: feature sets, ';'-separated."),
     classifiers: str = typer.Option(None, help="With --all: classifiers, comma-separated."),
-    protocols: str = typer.Option(None, help="With --all: protocols, comma-separated."),
+    protocols: str = typer.Option(None, help="Protocols, comma-separated: with --all, those "
+                                  "combined; without, each run with --features and "
+                                  "--classifier. A leave-one-X-out protocol also reports "
+                                  "each left-out value of X (e.g. pressure) on its own."),
     seed: int = typer.Option(0, help="Seed of the splits and classifiers."),
     results: Path = typer.Option(None, help="Also add the scores, dated, to this results file "
                                  "(e.g. docs/results.md)."),
@@ -355,7 +359,7 @@ def evaluate(
     except ValueError as exc:
         _fail(str(exc))
     combos = (_all_combos(dataset, feature_sets, classifiers, protocols) if all_
-              else [(features, classifier, protocol)])
+              else [(features, classifier, p) for p in (protocols or protocol).split(",")])
     typer.echo(f"projection before the classifier: {projection or 'none'}")
     rows, ev = _score(recordings, combos, all_, target=target, seed=seed, project=projection,
                       calibrate=calibrate, n_draws=draws)
@@ -420,7 +424,22 @@ def _score(recordings: list, combos: list[tuple[str, str, str]], skip_failed: bo
         shown = "".join(f"  {k} {v:.3f}" for k, v in scores.items())
         typer.echo(f"{f:>20} {c:>14} {p:>26}  accuracy {ev.accuracy:.3f}  "
                    f"macro-F1 {ev.macro_f1:.3f}{shown}")
+        _print_left_out(ev, p)
     return rows, ev
+
+
+def _print_left_out(ev, protocol: str) -> None:
+    """A leave-one-X-out protocol's accuracy per left-out value of X, one per line, with
+    where it lies against the training values."""
+    from frictionfit.classify import CONDITIONS, left_out_scores
+
+    key = protocol.removeprefix("leave-one-").removesuffix("-out")
+    if not protocol.startswith("leave-one-") or key not in CONDITIONS:
+        return
+    for row in left_out_scores(ev, key).to_dict("records"):
+        where = f", {row['where']} the training {key}s" if row["where"] else ""
+        typer.echo(f"{'':>20} left out {key} {row[key]} (trained on {row['trained_on']}"
+                   f"{where}): accuracy {row['accuracy']:.3f} (n {row['n']})")
 
 
 def _evaluation_files(ev, title: str, confusion: Path | None, predictions: Path | None,
