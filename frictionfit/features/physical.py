@@ -180,12 +180,13 @@ class PhysicalFeatures(RecordingFeatures):
     rig : {"recording", "session"}, default "recording"
         Where the motor's profile is fitted: per recording, or once per session (the median
         over the session's recordings featurised together).
-    creep : {"session", "recording"}, default "session"
-        Where the finger's creep (the slow relaxation branch's time constant) is fitted:
-        once per session and channel, the median over the session's recordings featurised
-        together (each session is one batch; a recording alone in its session keeps its
-        own), or per recording. With either at ``"session"`` a recording's features depend
-        on the session's recordings featurised with it: featurise a session in one call.
+    creep : {"recording", "session"}, default "recording"
+        Where the finger's creep (the slow relaxation branch's time constant) is fitted: per
+        recording (its features depend on it alone), or once per session and channel, the
+        median over the session's recordings featurised together (each session is one batch;
+        a recording alone in its session keeps its own). With either at ``"session"`` a
+        recording's features depend on the session's recordings featurised with it:
+        featurise a session in one call.
     relaxation : bool, default False
         Include the relaxation quantities: fitted ``relax_frac`` and ``tau``, ``drag``, and
         the measured ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms``. They describe the
@@ -216,14 +217,14 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 30  # 30: the creep held per session
+    _version = 30  # 30: the creep's level (creep)
     _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
     #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).
     _block = 64
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
-                 model: str = "relaxation2", rig: str = "recording", creep: str = "session",
+                 model: str = "relaxation2", rig: str = "recording", creep: str = "recording",
                  relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
                  accept_max_steps: bool = True, with_stderr: bool = False,
                  channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
@@ -486,7 +487,7 @@ class FittedFeatures(PhysicalFeatures):
     contact."""
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
-                 model: str = "relaxation2", rig: str = "recording", creep: str = "session",
+                 model: str = "relaxation2", rig: str = "recording", creep: str = "recording",
                  relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
                  accept_max_steps: bool = True, with_stderr: bool = False,
                  channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
