@@ -198,7 +198,7 @@ held = {}
 for source, recs in (("motor's reads", day),
                      ("force", [dataclasses.replace(r, extra={}) for r in day])):
     fit = frictionfit.fit_recordings(recs, channels=["index_x"], model="relaxation2",
-                                     rig="session")
+                                     rig="session", creep="recording")  # the motor's hold alone
     v, se = fit.params(here), fit.stderrs(here)
     held[f"day's profile, timing from the {source}"] = {n: f"{v[n]:.4g} +/- {se[n]:.2g}"
                                                        for n in law}

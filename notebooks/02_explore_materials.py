@@ -44,9 +44,11 @@ print(len(recs), "measurements,", len(CLASSES), "classes, e.g.", recs[0].name)
 
 # %%
 whole = frictionfit.fit_recordings(recs, channels=["index_x"], model="relaxation2",
-                                   fix={"wear": 0.0}, max_steps=200)  # as the features fit
+                                   fix={"wear": 0.0}, max_steps=200,
+                                   creep="recording")  # as the features fit
 fits = pd.concat([whole.values, whole.stderr.add_suffix("_stderr")], axis=1)
-measured = PhysicalFeatures(channels=("index_x",), cache=False)  # model-free, per phase
+measured = PhysicalFeatures(channels=("index_x",), relaxation=True,
+                            cache=False)  # model-free, per phase, relaxation included
 cols = [c.removeprefix("index_x:").split(" ")[0] for c in measured.get_feature_names_out()]
 fits = pd.concat([fits, pd.DataFrame(measured.fit_transform(recs), columns=cols)], axis=1)
 fits["label"] = [r.metadata["label"] for r in recs]
@@ -98,7 +100,7 @@ fig.tight_layout()
 
 # %%
 worn = frictionfit.fit_recordings(recs, channels=["index_x"], model="relaxation2",
-                                  max_steps=200).values
+                                  max_steps=200, creep="recording").values
 for name in ("k", "f_kin", "tau"):
     ratio = worn[name] / fits[f"true_{name}"]
     print(f"{name:6s} wear fitted: median fitted/true {ratio.median():.3f}, "

@@ -36,7 +36,7 @@ from sklearn.metrics import ConfusionMatrixDisplay
 from sklearn.pipeline import make_pipeline as sk_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from frictionfit.classify import evaluate, make_classifier, make_pipeline
+from frictionfit.classify import evaluate, make_classifier, make_pipeline, projection_for
 from frictionfit.features import make_features
 from frictionfit.simulation.measurements import simulate_measurements
 
@@ -64,8 +64,12 @@ print(len(recs), "measurements of", len(CLASSES), "classes in 2 sessions")
 # Rows are cached by recording content, so the second fold and the later cells reuse them.
 
 # %%
-FEATURE_SETS = {"physical": None, "fitted": None,
-                "physical (all)": make_pipeline("physical", fitted=True, project="lda"),
+# (`relaxation=True`: the relaxation quantities too, which one rig's recordings can use)
+FEATURE_SETS = {"physical": make_pipeline("physical", relaxation=True,
+                                          project=projection_for(recs)),
+                "fitted": make_pipeline("fitted", relaxation=True, project=projection_for(recs)),
+                "physical (all)": make_pipeline("physical", fitted=True, relaxation=True,
+                                                project="lda"),
                 "handcrafted": None, "fftbins": None, "raw": None,
                 "physical,handcrafted": None}
 results, rows = {}, []
@@ -86,8 +90,8 @@ table.round(3)
 train_recs = [r for r in recs if r.metadata["session"] == 1]
 dof = len(train_recs) - len(CLASSES)
 for names in FEATURE_SETS:
-    features = (make_features("physical", fitted=True) if names == "physical (all)"
-                else make_features(names))
+    features = (make_features("physical", fitted=True, relaxation=True)
+                if names == "physical (all)" else make_features(names, relaxation=True))
     p = features.fit_transform(train_recs).shape[1]
     print(f"{names}: {p} features, LDA projection {'used' if dof > p else 'steps aside'}")
 print(f"{len(train_recs)} training recordings - {len(CLASSES)} classes = {dof} degrees of freedom")
@@ -130,7 +134,7 @@ for names in ("physical (all)", best_other):
 # sum the importances over the four channels.
 
 # %%
-phys = make_features("physical", fitted=True)
+phys = make_features("physical", fitted=True, relaxation=True)
 X = pd.DataFrame(phys.fit_transform(recs), columns=phys.get_feature_names_out())
 session = np.array([r.metadata["session"] for r in recs])
 labels = np.array([r.metadata["label"] for r in recs])
@@ -169,7 +173,8 @@ print(f"physical, leave-one-session-out: accuracy {ev.accuracy:.3f}, "
       f"ECE {expected_calibration_error(ev.predictions['probability'], ev.correct):.3f}")
 train = [r for r in recs if r.metadata["session"] == 1]
 test = [r for r in recs if r.metadata["session"] == 2]
-model = CalibratedPipeline(make_pipeline("physical", probability=True), n_draws=32).fit(
+model = CalibratedPipeline(make_pipeline("physical", probability=True, relaxation=True),
+                           n_draws=32).fit(
     train, [r.metadata["label"] for r in train])
 
 rng = np.random.default_rng(0)
@@ -225,7 +230,8 @@ import frictionfit
 from frictionfit.features.physical import FittedFeatures
 
 labels = [r.metadata["label"] for r in train]
-with_errors = FittedFeatures(with_stderr=True).fit(train)  # the rows the fits above stored
+# the rows the fits above stored
+with_errors = FittedFeatures(with_stderr=True, relaxation=True).fit(train)
 names = list(with_errors.get_feature_names_out())
 values = [n for n in names if "_stderr" not in n]
 errors = [n for n in names if "_stderr" in n]
@@ -237,15 +243,14 @@ doubtful = test[j]
 print(f"{doubtful.name}: median stderr / training spread {doubt[j]:.2f} "
       f"(session 2 median {np.median(doubt):.2f})")
 fit = frictionfit.fit_recordings(doubtful, channels=["index_x"], model="relaxation2",
-                                 fix={"wear": 0.0}, max_steps=200,
+                                 fix={"wear": 0.0}, max_steps=200, creep="recording",
                                  progress=False)  # as the features fit
 print(fit.report(0))
 
 # %%
-point = CalibratedPipeline(make_pipeline("fitted", probability=True), n_draws=0).fit(
-    train, labels)
-drawn = CalibratedPipeline(make_pipeline("fitted", probability=True), n_draws=64).fit(
-    train, labels)
+fitted_pipeline = make_pipeline("fitted", probability=True, relaxation=True)
+point = CalibratedPipeline(fitted_pipeline, n_draws=0).fit(train, labels)
+drawn = CalibratedPipeline(fitted_pipeline, n_draws=64).fit(train, labels)
 probabilities = pd.DataFrame({"point values": point.predict_proba(test)[j],
                               "posterior draws": drawn.predict_proba(test)[j]},
                              index=point.classes_)

@@ -101,7 +101,8 @@ def fit_whole(
     run = _Run(solver, rig, timing, dict(max_steps=max_steps, pool_size=pool_size,
                                           progress=progress))
     holds = _Holds()
-    if creep == "session" and set(CREEP) <= set(base.param_names) - set(fix or {}):
+    if (creep == "session" and set(CREEP) <= set(base.param_names) - set(fix or {})
+            and _shared_sessions(items)):
         fix = dict(fix or {}) | holds.creep(items, base, held_of(base, fix, models), u0, run)
     base_fix = held_of(base, fix, models)
     timed, fits = _base_fit(items, base, base_fix, u0, run,
@@ -146,6 +147,13 @@ class _Run:
     @property
     def first_pass(self) -> BatchedLevenbergMarquardt:
         return with_solver_tolerances(self.solver, FIRST_PASS)
+
+
+def _shared_sessions(items: Sequence[MeasurementData]) -> bool:
+    """Whether some session holds more than one item of a channel (a hold at the session's
+    then means something; alone in its session, an item keeps its own values)."""
+    keys = [(d.session, d.channel) for d in items if d.session is not None]
+    return len(set(keys)) < len(keys)
 
 
 class _Holds:
