@@ -90,7 +90,7 @@ def fit_recordings(
     model: MeasurementModel | str = "auto",
     solver: BatchedLevenbergMarquardt = WHOLE_FIT_SOLVER,
     rig: str | Mapping[str, SessionRig] = "recording",
-    creep: str = "session",
+    creep: str = "recording",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
@@ -128,11 +128,11 @@ def fit_recordings(
         profile, the better BIC kept, unless ``refit_rig_outliers`` is False).
         ``"session"``: the motor's profile held at each session's median and fitted again,
         its spread carried into the stderrs (``session_rigs``). A mapping: earlier profiles.
-    creep : {"session", "recording"}
-        ``"session"``: the finger's creep, the slow relaxation branch's time constant
-        ``tau2``, is the rig's: fitted free first, then held at the median of each session's
-        fits of the same channel (a recording without a session, or alone in it, keeps its
-        own), its spread carried into the stderrs; ``"recording"``: free in every fit.
+    creep : {"recording", "session"}
+        ``"recording"``: the finger's creep, the slow relaxation branch's time constant
+        ``tau2``, free in every fit. ``"session"``: it is the rig's: fitted free first, then
+        held at the median of each session's fits of the same channel (a recording without
+        a session, or alone in it, keeps its own), its spread carried into the stderrs.
     timing : {"movement", "rig"}
         ``"movement"``: each movement's own latency and duration (the motor's reads, else
         found from the force at a first optimum); ``"rig"``: one for all.

@@ -59,7 +59,7 @@ def test_a_value_less_certain_than_the_training_spread_is_drawn_from_training(fi
     values, errors = _columns(feats)
     wide = np.zeros((len(recs), len(feats.get_feature_names_out())))
     wide[:, errors] = 1e6  # every fitted value far less certain than the training spread
-    assert feats._stored_names() == list(feats.get_feature_names_out())  # with_stderr
+    assert feats._stored_names() == feats._names()  # with_stderr: every stored column shown
     draws = feats._spread(np.broadcast_to(wide, (3, *wide.shape)), np.random.default_rng(0))
     assert np.isnan(draws[:, :, values]).all()  # left to _drawn_where_missing
     filled = feats._drawn_where_missing(draws, np.random.default_rng(0))

@@ -49,12 +49,12 @@ def fit(
                             "day holds its day's profile)."),
     save_rig: Path = typer.Option(None, help="Whole fits with --rig session: write each "
                                   "session's motor profile to this .json file."),
-    creep: str = typer.Option("session", help="Whole fits: session (the finger's creep, the "
-                              "slow relaxation branch's time constant tau2, fitted free first, "
-                              "then held at the median of each session's fits of the channel "
-                              "in the batch, its spread carried into the stderrs; a recording "
-                              "alone in its session keeps its own) or recording (free in "
-                              "every fit)."),
+    creep: str = typer.Option("recording", help="Whole fits: recording (the finger's creep, "
+                              "the slow relaxation branch's time constant tau2, free in every "
+                              "fit) or session (fitted free first, then held at the median of "
+                              "each session's fits of the channel in the batch, its spread "
+                              "carried into the stderrs; a recording alone in its session "
+                              "keeps its own)."),
     channel: list[str] = typer.Option([], help="Channels to fit (repeatable; whole fits: "
                                       "default thumb_x and index_x; --motions: every channel). "
                                       "A dead (constant) channel is skipped by name."),

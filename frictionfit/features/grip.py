@@ -1,4 +1,4 @@
-"""The grip as a measured input of a FabricSlide slide: the normal load and its scaling laws.
+"""The grip as a observed input of a FabricSlide slide: the normal load and its scaling laws.
 
 **The load.** The grip loop closes or opens the gripper until the trimmed mean of
 the 16 taxels (largest and smallest dropped) equals its set-point, so that trimmed
@@ -18,7 +18,7 @@ breakaway shift (:func:`breakaway_shift`, counts). A friction-like quantity, it 
 with the normal load, and as a difference of each taxel with itself it is unchanged by
 a constant added to any taxel.
 
-**Scaling laws.** A quantity ``q`` measured at loads ``L`` follows a power law
+**Scaling laws.** A quantity ``q`` observed at loads ``L`` follows a power law
 ``q = c L^b`` (``log q`` linear in ``log L``). :class:`GripLaw` fits one exponent per
 quantity, common to the classes and fitted within each class across the training
 grips (class intercepts free), and gives each quantity at a reference load:

@@ -1,6 +1,6 @@
 """Physical features of a FabricSlide slide: texture beyond the grip, scaled by the grip.
 
-**The grip is measured, not a class.** The grip loop regulates the taxels' trimmed
+**The grip is observed, not a class.** The grip loop regulates the taxels' trimmed
 mean, so the taxels measure the normal load (:mod:`frictionfit.features.grip`): its
 level (the grip load, counts) and its variation in time as the loop re-commands the
 gripper (the mean over taxels), which every taxel follows with its own gain. The
@@ -11,7 +11,7 @@ grip is read through the law. The default ``grip="breakaway"`` measures the load
 the breakaway shift (:func:`~frictionfit.features.grip.breakaway_shift`: the load the
 starting slide shifts between the taxels, friction-like), which a constant offset on a
 taxel does not move; ``grip="scaled"`` by the grip load (the taxels' level), which it
-does; ``grip="none"`` leaves the features as measured.
+does; ``grip="none"`` leaves the features as observed.
 
 **Texture, not mounting.** Each taxel's own mean (or linear trend, in the steady part)
 is removed and amplitudes are relative to a taxel's own dynamic range, so a constant
@@ -22,7 +22,7 @@ proximity words are never read.
 **Slide model (``contact=True`` exposes it; always computed).** The observable is the
 first principal component (PC1) of the centred taxels (sign: loadings sum positive)
 over its own 5-95 % range ("r"), block-averaged to ``N_FIT`` points over the whole
-slide. It is modelled as its least-squares response to the measured load's variation
+slide. It is modelled as its least-squares response to the observed load's variation
 plus the ``relaxation`` member of the family (play operator with slip weakening plus a
 Maxwell branch) driven by the known travel (``drive="given"``; quarter-sine velocity
 ramp of ``ramp_s``, then constant ``|v|``), fitted to what the load leaves: loading
@@ -220,7 +220,7 @@ def _start_guess(y: np.ndarray, x: np.ndarray, duration_s: float) -> tuple[list[
 def fit_breakaway(recordings: Sequence[Recording], max_steps: int = 200) -> np.ndarray:
     """Fit the slide model to each whole slide; rows of the ``_FIT_NAMES`` features.
 
-    The slide model is the observable's response to the measured load's variation
+    The slide model is the observable's response to the observed load's variation
     (a gain) plus the contact model driven by the travel. Fitted in two rounds: the
     gain by least squares, the contact model on what it leaves; then the gain again
     on what the contact model leaves, and the contact model again from its first
@@ -296,7 +296,7 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     grip : {"breakaway", "scaled", "none"}, default "breakaway"
         The measure of the load the features' laws are fitted against: the breakaway
         shift (counts; offset-invariant), the grip load (counts; the taxels' level, not
-        offset-invariant); or none (the features as measured).
+        offset-invariant); or none (the features as observed).
     cache : bool, default True
         Cache rows per recording content (see :mod:`frictionfit.features._base`).
 

@@ -71,7 +71,7 @@ def fit_whole(
     model: MeasurementModel | str = "auto",
     solver: BatchedLevenbergMarquardt = WHOLE_FIT_SOLVER,
     rig: str | Mapping[str, SessionRig] = "recording",
-    creep: str = "session",
+    creep: str = "recording",
     timing: str = "movement",
     fix: Mapping[str, float | np.ndarray] | None = None,
     u0: np.ndarray | None = None,
@@ -417,7 +417,7 @@ def _deprecated(old: str, new: str) -> None:
 def fit_measurements(items: Sequence[MeasurementData], **kw) -> MeasurementFit:
     """Deprecated: :func:`frictionfit.fit_recordings` (which also takes prepared items)."""
     _deprecated("fit_measurements", "frictionfit.fit_recordings")
-    return fit_whole(items, **{"creep": "recording", **kw})
+    return fit_whole(items, **kw)
 
 
 def fit_motions(items: Sequence[MeasurementData], result: MeasurementFit, **kw
