@@ -108,7 +108,14 @@ def ar1_deviance(resid, mask) -> np.ndarray:
     return -2.0 * ar1_log_likelihood(resid, mask, sigma, rho) - n * (1.0 + np.log(2 * np.pi))
 
 
+#: The largest lag-one correlation the long-run variance takes: beyond it the residual is the
+#: model's own structured misfit rather than AR(1) noise, and ``(1 + rho) / (1 - rho)`` (39 at
+#: the cap, 199 at 0.99) would bury every parameter's standard error in it.
+RHO_CAP = 0.95
+
+
 def long_run_variance(sigma, rho):
-    """``sigma^2 (1 + rho) / (1 - rho)``: the variance per residual of the AR(1) likelihood's
-    long-run form (units of ``sigma`` squared)."""
-    return sigma**2 * (1.0 + rho) / (1.0 - rho)
+    """``sigma^2 (1 + r) / (1 - r)`` with ``r = min(rho, RHO_CAP)``: the variance per residual
+    of the AR(1) likelihood's long-run form (units of ``sigma`` squared)."""
+    r = np.minimum(rho, RHO_CAP)
+    return sigma**2 * (1.0 + r) / (1.0 - r)
