@@ -231,7 +231,7 @@ def _base_fit(items: Sequence[MeasurementData], base: MeasurementModel, fix: Map
     # a first fit that a second polishes: looser tolerances, and no statement of its own
     first = fit_batch(coarse, model=base, fix=dict(fix) | dict(first_fix or {}), u0=u0,
                       **run.kw, **(dict(solver=run.first_pass, final=False) if again
-                                   else dict(solver=run.solver_for(False))))
+                                   else dict(solver=run.solver_for(False), held_cov=held_cov)))
     items = (with_movement_timing(base, items, first) if run.timing == "movement"
              else list(items))
     if not again:
