@@ -71,7 +71,9 @@ FEATURE_SETS = {"physical": make_pipeline("physical", relaxation=True,
                 "physical (all)": make_pipeline("physical", fitted=True, relaxation=True,
                                                 project="lda"),
                 "handcrafted": None, "fftbins": None, "raw": None,
-                "physical,handcrafted": None}
+                "physical,handcrafted": make_pipeline("physical,handcrafted", "svm-ovo", seed=0,
+                                                      relaxation=True, probability=True,
+                                                      project=projection_for(recs))}
 results, rows = {}, []
 for names, pipeline in FEATURE_SETS.items():
     start = time.perf_counter()

@@ -26,7 +26,7 @@ def fitted(feature_cache):
     clean, *others = simulate_measurements([(1, "paper-2", 1), (1, "carpet-1", 1),
                                             (1, "cushion-1", 1), (1, "scarf-2", 1)], seed=5)
     recs = [clean, _noisier(clean, 0.05, seed=1)]
-    feats = FittedFeatures(rig="recording", with_stderr=True).fit(recs + others)
+    feats = FittedFeatures(rig="recording", with_stderr=True, relaxation=True).fit(recs + others)
     return feats, recs
 
 
@@ -84,7 +84,7 @@ def test_the_draws_are_seeded(fitted):
 
 def test_the_stderr_is_cached_but_a_feature_only_on_request(fitted):
     feats, recs = fitted
-    plain = FittedFeatures(rig="recording").fit(recs)
+    plain = FittedFeatures(rig="recording", relaxation=True).fit(recs)
     names = list(plain.get_feature_names_out())
     assert not any("_stderr" in n for n in names)
     assert len(feats.get_feature_names_out()) == 2 * len(names)

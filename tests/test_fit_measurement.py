@@ -278,11 +278,13 @@ def test_cli_fits_whole_recordings_by_default(tmp_path, simulated, monkeypatch):
 
     frame = pd.read_csv(out)
     assert frame["trial"].tolist() == ["one/index_x"]
-    assert frame["k [N/mm]"].notna().all()
+    assert frame["k [N/stroke]"].notna().all()  # no stroke declared: no false N/mm
+    assert not [c for c in frame.columns if "mm]" in c]
     assert frame["drift_flag"].tolist() == ["fixed"] and frame["drift [N/s]"].tolist() == [0.0]
     assert frame["uq_method"].tolist() == ["laplace"]  # the posterior's quantiles beside
-    k = frame.iloc[0][["k_p2.5 [N/mm]", "k_median [N/mm]", "k_p97.5 [N/mm]"]].to_numpy()
-    assert k[0] < frame["k [N/mm]"][0] < k[2] and np.all(np.diff(k) > 0)
+    k = frame.iloc[0][["k_p2.5 [N/stroke]", "k_median [N/stroke]",
+                       "k_p97.5 [N/stroke]"]].to_numpy()
+    assert k[0] < frame["k [N/stroke]"][0] < k[2] and np.all(np.diff(k) > 0)
     assert k[0] < measurement_truth(simulated[1], "k") < k[2]
     assert [p.name for p in plots.iterdir()] == ["one__index_x.png"]
     bad = CliRunner().invoke(app, ["fit", str(tmp_path / "one.csv"), "--tie", "k",
@@ -532,8 +534,7 @@ def test_fitted_features_follow_the_sklearn_contract():
     f = FittedFeatures(rig="recording", decimate=2)
     assert clone(f).get_params() == f.get_params()
     rubbing = ("k [log10 N/mm]", "f_static [log10 N]", "f_held [log10 N]", "f_peak [log10 N]",
-               "onset_rate [log10 N/s]", "slip_noise [log10 N]", "relax_frac [1]",
-               "tau [log10 s]", "drag [log10 N s/mm]")
+               "onset_rate [log10 N/s]", "slip_noise [log10 N]")
     lateral = ("gain [1]", "slip_noise [log10 N]")  # the lateral law on the finger's force
     assert list(f.get_feature_names_out()) == [
         f"{finger}_{axis}:fit_{n}" for finger in ("thumb", "index")
@@ -729,3 +730,25 @@ def test_the_old_names_still_work_and_say_they_are_deprecated(simulated):
     with pytest.warns(DeprecationWarning, match="fit_motions is deprecated"):
         motions, item_of, _ = measurement.fit_motions(items, old)
     np.testing.assert_array_equal(item_of, new.per_motion().item_of)
+
+
+def test_a_declared_stroke_puts_the_travel_in_mm_and_none_says_per_stroke(simulated):
+    from frictionfit import Recording
+
+    rec = simulated[1]
+    declared = Recording.from_arrays(rec.samples, rec.sample_rate_hz, rec.channel_names,
+                                     events=rec.events, name="declared",
+                                     metadata={**rec.metadata, "stroke_mm": 13.0})
+    bare = fit_recordings(rec, channels=["index_x"], model="relaxation2", progress=False)
+    mm = fit_recordings(declared, channels=["index_x"], model="relaxation2", progress=False)
+    per_stroke, per_mm = bare.to_frame(), mm.to_frame()
+    assert "k [N/mm]" not in per_stroke and "slip_length [stroke]" in per_stroke
+    # the same fit, its travel read in mm of the declared 13-mm stroke
+    assert per_mm["k [N/mm]"][0] == pytest.approx(per_stroke["k [N/stroke]"][0] / 13.0)
+    assert per_mm["slip_length [mm]"][0] == pytest.approx(
+        per_stroke["slip_length [stroke]"][0] * 13.0)
+    assert "N/mm" in mm.report(0) and "N/stroke" in bare.report(0)
+    post = mm.posterior(method="laplace")
+    assert post.quantiles[0]["k"][2] == pytest.approx(
+        bare.posterior(method="laplace").quantiles[0]["k"][2] / 13.0, rel=1e-6)
+    assert "k_median [N/mm]" in post.to_frame()

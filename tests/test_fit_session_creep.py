@@ -47,9 +47,9 @@ def test_an_unknown_creep_level_is_refused(session):
         fit_recordings(session[0], channels=["index_x"], creep="day", progress=False)
 
 
-def test_the_relaxation_quantities_are_left_out_on_request():
-    names = PhysicalFeatures(fitted=True).get_feature_names_out()
-    kept = PhysicalFeatures(fitted=True, relaxation=False).get_feature_names_out()
+def test_the_relaxation_quantities_are_left_out_unless_asked_for():
+    names = PhysicalFeatures(fitted=True, relaxation=True).get_feature_names_out()
+    kept = PhysicalFeatures(fitted=True).get_feature_names_out()
     gone = sorted(set(names) - set(kept))
     assert len(names) == 110 and len(kept) == 56
     assert {n.split(":")[1].split(" ")[0] for n in gone} == {
@@ -57,3 +57,5 @@ def test_the_relaxation_quantities_are_left_out_on_request():
         "out_t_relax", "back_t_relax", *(f"{p}_relax_{ms}ms" for p in ("out", "back")
                                          for ms in (50, 100, 200, 400))}
     assert "index_x:fit_k [log10 N/mm]" in kept and "index_x:out_onset_rate [N/s]" in kept
+    with_errors = PhysicalFeatures(fitted=True, with_stderr=True).get_feature_names_out()
+    assert not [n for n in with_errors if "relax" in n or "tau" in n or "drag" in n]

@@ -148,12 +148,12 @@ def _with_stroke(rec, stroke_mm):
 
 def test_stiffness_is_per_mm_of_the_declared_stroke_and_named_per_stroke_without_one():
     rec, = simulate_measurements([(1, "paper-2", 1)], seed=7)
-    bare = FittedFeatures(channels=("index_x",), cache=False)
+    bare = FittedFeatures(channels=("index_x",), relaxation=True, cache=False)
     row = bare.fit_transform([rec])[0]
     names = list(bare.get_feature_names_out())
     assert "index_x:fit_k [log10 N/stroke]" in names  # no stroke declared: no false N/mm
     assert "index_x:fit_drag [log10 N s/stroke]" in names
-    declared = FittedFeatures(channels=("index_x",), cache=False)
+    declared = FittedFeatures(channels=("index_x",), relaxation=True, cache=False)
     row_mm = declared.fit_transform([_with_stroke(rec, 13.0)])[0]
     assert "index_x:fit_k [log10 N/mm]" in list(declared.get_feature_names_out())
     per_stroke = dict(zip(names, row, strict=True))

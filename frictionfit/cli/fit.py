@@ -62,8 +62,10 @@ def fit(
     report: bool = typer.Option(False, help="Print the fit report of the first row."),
     plot: Path = typer.Option(None, help="Write a PNG of data vs. fit with residuals per row "
                               "into this folder."),
-    stroke_mm: float = typer.Option(1.0, help="The rig's finger stroke in mm (stiffness is "
-                                    "per mm of it)."),
+    stroke_mm: float = typer.Option(1.0, help="The rig's finger stroke in mm for recordings "
+                                    "that do not declare one (metadata.stroke_mm, which wins "
+                                    "where given). With neither, stiffness is per stroke and "
+                                    "its columns say N/stroke."),
     fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
                                   "(repeatable; with the auto model, in the laws that have it), "
                                   "e.g. --fix tau=0.1."),

@@ -13,7 +13,7 @@ does; a mix is an error: the two do not compare), the static
 friction level ``f_static = f_kin + f_static_excess`` (N), and what the fit derives
 (:mod:`frictionfit.fit.derived`): the held force ``f_held`` (N), the peak force ``f_peak``
 (N) and the ``onset_rate`` (N/s) as the sensor sees them, and the stick-slip intensity
-``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); unless ``relaxation=False``,
+``slip_noise`` (N, floored at :data:`SLIP_FLOOR_N`); with ``relaxation=True`` also
 ``relax_frac`` (1), ``tau`` (s) and ``drag`` (N s/mm, or N s/stroke as ``k``); never the
 sensor's offset, drift or leak, nor the rig's motor timing or creep.
 ``with_stderr=True`` adds each one's standard error (of the log10 where logged).
@@ -34,8 +34,8 @@ slope between the command and the peak: loading stiffness times drive speed) and
 25-sample moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
 oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
 50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free. The
-relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are left out with
-``relaxation=False``: how the force relaxes after a stroke depends on the rig's finger as
+relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are kept only with
+``relaxation=True``: how the force relaxes after a stroke depends on the rig's finger as
 much as on the material.
 
 **Missing values.** A trial whose fit fails (any status but CONVERGED and
@@ -103,8 +103,8 @@ N_BASIC = 6
 #: Names of the relaxation quantities (after the channel), left out with ``relaxation=False``:
 #: fitted ``relax_frac``, ``tau`` and ``drag``; measured ``relaxed_frac``, ``t_relax`` and
 #: ``relax_<ms>ms``.
-_RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)\b|(out|back)_(relaxed_frac|t_relax|"
-                         r"relax_\d+ms)\b)")
+_RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)(_stderr)?\b"
+                         r"|(out|back)_(relaxed_frac|t_relax|relax_\d+ms)\b)")
 #: Delays after the peak (s) of the normalised relaxation curve ``relax_<ms>ms``.
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is measured.
@@ -187,11 +187,11 @@ class PhysicalFeatures(RecordingFeatures):
         a recording alone in its session keeps its own). With either at ``"session"`` a
         recording's features depend on the session's recordings featurised with it:
         featurise a session in one call.
-    relaxation : bool, default True
+    relaxation : bool, default False
         Include the relaxation quantities: fitted ``relax_frac``, ``tau`` and ``drag``, and
         ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms`` read off the force. They describe
-        the rig (its finger's creep and play, its motor) as much as the material: False
-        leaves them out, for a model meant to hold on another rig.
+        the rig (its finger's creep and play, its motor) as much as the material, so a
+        model meant to hold on another rig leaves them out; True keeps them, for one rig.
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
@@ -225,7 +225,7 @@ class PhysicalFeatures(RecordingFeatures):
 
     def __init__(self, fitted: bool = False, measured: bool = True, shape: bool = True,
                  model: str = "relaxation2", rig: str = "recording", creep: str = "recording",
-                 relaxation: bool = True, decimate: int = 1, max_steps: int = 200,
+                 relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
                  accept_max_steps: bool = True, with_stderr: bool = False,
                  channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
                  cache: bool = True):
@@ -488,7 +488,7 @@ class FittedFeatures(PhysicalFeatures):
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
                  model: str = "relaxation2", rig: str = "recording", creep: str = "recording",
-                 relaxation: bool = True, decimate: int = 1, max_steps: int = 200,
+                 relaxation: bool = False, decimate: int = 1, max_steps: int = 200,
                  accept_max_steps: bool = True, with_stderr: bool = False,
                  channels: tuple[str, ...] = RUBBING_CHANNELS, wear: bool = False,
                  cache: bool = True):

@@ -118,6 +118,11 @@ class FitResult:
         name -> stderr in physical units (``PARAMS[name].unit``)."""
         return _own(self.stderr, i, self.member(i).param_names)
 
+    def unit(self, i: int, name: str) -> tuple[str, float]:
+        """Parameter ``name``'s unit in trial ``i``'s tables and report, and the factor from
+        its value in :attr:`values` to that unit (here ``PARAMS[name].unit`` and 1)."""
+        return PARAMS[name].unit, 1.0
+
     def free_names(self, i: int) -> list[str]:
         """The parameters trial ``i``'s fit varied (the rows of ``cov[i]``)."""
         return [n for n in self.member(i).param_names
@@ -136,9 +141,9 @@ class FitResult:
             own = names[self.model[i]]
             values, stderr = _own(self.values, i, own), _own(self.stderr, i, own)
             for name, v in values.items():
-                unit = PARAMS[name].unit
-                row[f"{name} [{unit}]"] = v
-                row[f"{name}_stderr [{unit}]"] = stderr[name]
+                unit, scale = self.unit(i, name)
+                row[f"{name} [{unit}]"] = v * scale
+                row[f"{name}_stderr [{unit}]"] = stderr[name] * scale
                 row[f"{name}_flag"] = self.flags[i].get(name, "")
             for name, (v, se) in (self.derived[i] if self.derived is not None else {}).items():
                 row[f"{name} [{DERIVED[name]}]"] = v
@@ -203,13 +208,13 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
     ]
     stderr = result.stderrs(i)
     for name, v in result.params(i).items():
-        se = stderr[name]
-        unit = PARAMS[name].unit
+        unit, scale = result.unit(i, name)
+        v, se = v * scale, stderr[name] * scale
         pct = f" ({100 * se / abs(v):.2f}%)" if np.isfinite(se) and v != 0 else ""
         flag = result.flags[i].get(name)
         warn = (f"  ({flag})" if flag in ("fixed", "tied")
                 else f"  <-- not identifiable: {flag}" if flag else "")
-        init = f" (init = {result.init[i][name]:.6g})" if result.init is not None else ""
+        init = f" (init = {result.init[i][name] * scale:.6g})" if result.init is not None else ""
         lines.append(f"    {name:16s} = {v:.6g} +/- {se:.3g}{pct} {unit}{init}{warn}")
     if result.derived is not None:
         lines.append("[[Derived]]")
@@ -227,10 +232,11 @@ def fit_report(result: FitResult, i: int = 0, min_correl: float = 0.1) -> str:
     if priors:
         lines.append("[[Priors]] (Normal on the log of loglogit parameters; the fit is MAP)")
         for name, (centre, sd) in priors.items():
-            kind = "median" if PARAMS[name].transform == "loglogit" else "mean"
-            sd_of = "log sd" if PARAMS[name].transform == "loglogit" else "sd"
-            unit = PARAMS[name].unit
-            lines.append(f"    {name:16s} {kind} {centre:.6g} {unit}, {sd_of} {sd:.3g}")
+            logged = PARAMS[name].transform == "loglogit"
+            unit, scale = result.unit(i, name)
+            kind, sd_of = ("median", "log sd") if logged else ("mean", "sd")
+            sd = sd if logged else sd * scale  # the sd of a log is free of the unit
+            lines.append(f"    {name:16s} {kind} {centre * scale:.6g} {unit}, {sd_of} {sd:.3g}")
     if result.bic_table is not None:
         lines.append("[[BIC by model]]")
         for name, b in result.bic_table.iloc[i].items():

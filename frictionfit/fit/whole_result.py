@@ -18,8 +18,28 @@ import numpy as np
 
 from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.fit.result import FitResult, fit_report
+from frictionfit.models import PARAMS
 
-__all__ = ["MeasurementFit"]
+__all__ = ["MeasurementFit", "travel_unit"]
+
+
+def travel_unit(name: str, model_stroke_mm: float,
+                declared_mm: float | None) -> tuple[str, float]:
+    """Parameter ``name``'s reported unit, and the factor from its fitted value to it.
+
+    A whole fit measures travel in its model's stroke (``model_stroke_mm`` per movement).
+    Where the recording declares its rig's stroke (``declared_mm``, mm) a quantity per mm
+    is reported per mm of fingertip travel (times ``model_stroke_mm / declared_mm``) and a
+    length in mm (times the inverse). Where it declares none and the model's stroke is the
+    nominal 1, the unit says what the value is: per stroke (``"N/stroke"``), not per mm.
+    """
+    unit = PARAMS[name].unit
+    if "mm" not in unit:
+        return unit, 1.0
+    if declared_mm is None:
+        return (unit.replace("mm", "stroke"), 1.0) if model_stroke_mm == 1.0 else (unit, 1.0)
+    ratio = model_stroke_mm / declared_mm
+    return unit, ratio if "/mm" in unit else 1.0 / ratio
 
 
 @dataclass(repr=False)
@@ -73,6 +93,12 @@ class MeasurementFit(FitResult):
     def member(self, i: int):
         """Row ``i``'s :class:`~frictionfit.models.MeasurementModel`."""
         return self.fitted_models[i]
+
+    def unit(self, i: int, name: str) -> tuple[str, float]:
+        """Parameter ``name``'s unit in row ``i``'s tables and report, and the factor from
+        its value in :attr:`values` to it (:func:`travel_unit`: mm of fingertip travel where
+        the recording declares its rig's stroke, "stroke" where it does not)."""
+        return travel_unit(name, self.member(i).stroke_mm, self.items[i].stroke_mm)
 
     def predict(self, i: int, t=None) -> np.ndarray:
         """The fitted channel (N) of row ``i`` at increasing times ``t`` (s from the

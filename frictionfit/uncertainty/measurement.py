@@ -47,7 +47,7 @@ from frictionfit.fit._stats import VANISHING
 from frictionfit.fit._whole_problem import WholeFitData, normal_fn, profile_drops, stack_items
 from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.fit.whole_result import MeasurementFit
-from frictionfit.models import MeasurementModel
+from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import jit_host_loop
 from frictionfit.uncertainty._ensemble import ChainResult, run_lockstep
 from frictionfit.uncertainty._logpost import log_logistic
@@ -185,7 +185,22 @@ def whole_fit_posterior(
                       dict(nwalkers=nwalkers or 2 * len(free) + 2, seed=seed,
                            max_steps=max_steps, check_every=check_every,
                            min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
-    return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, **out)
+    units = [_in_reported_units(fit, i, out) for i in range(n)]
+    return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, units=units,
+                     **out)
+
+
+def _in_reported_units(fit: MeasurementFit, i: int, out: dict) -> dict:
+    """Row ``i``'s quantiles and sd put in the units the fit reports (:meth:`MeasurementFit.
+    unit`); the parameters whose unit that changes, ``name -> (unit, factor)``."""
+    units = {}
+    for name in out["quantiles"][i]:
+        unit, scale = fit.unit(i, name)
+        if (unit, scale) != (PARAMS[name].unit, 1.0):
+            units[name] = (unit, scale)
+            out["quantiles"][i][name] = np.asarray(out["quantiles"][i][name]) * scale
+            out["sd"][i][name] = out["sd"][i][name] * scale
+    return units
 
 
 def measurement_posterior(fit: MeasurementFit, items: Sequence[MeasurementData] | None = None,

@@ -45,6 +45,10 @@ class Posterior:
         emcee :class:`ChainResult` per trial (unconstrained), or None.
     wall_s : float
         Wall time of the whole batch, s.
+    units : list of dict, optional
+        Per trial, ``name -> (unit, factor)`` where a parameter is reported in another unit
+        than ``PARAMS[name].unit`` (a whole fit's travel per declared stroke; see
+        :meth:`unit`); the quantiles and sd are in it already.
     """
 
     model: list[str]
@@ -59,10 +63,17 @@ class Posterior:
     acceptance: np.ndarray
     chains: list[ChainResult | None] = field(repr=False)
     wall_s: float = 0.0
+    units: list[dict] | None = field(default=None, repr=False)
 
     @property
     def n_trials(self) -> int:
         return len(self.model)
+
+    def unit(self, i: int, name: str) -> tuple[str, float]:
+        """Parameter ``name``'s unit in trial ``i``'s results, and the factor from the
+        model's physical value (``PARAMS[name].unit``) to it."""
+        given = self.units[i].get(name) if self.units is not None else None
+        return given or (PARAMS[name].unit, 1.0)
 
     def verdict(self) -> str:
         """One line for a log: the rows per method, and how many emcee chains converged
@@ -96,7 +107,7 @@ class Posterior:
             raise ValueError(f"trial {i} has no emcee chain (method {self.method[i]!r})")
         flat = chain.samples.reshape(-1, chain.samples.shape[-1])
         model = _member(self.model[i])
-        return pd.DataFrame({p.name: np.asarray(p.to_physical(flat[:, j]))
+        return pd.DataFrame({p.name: np.asarray(p.to_physical(flat[:, j])) * self.unit(i, p.name)[1]
                              for j, p in enumerate(model.params)})
 
     def to_frame(self, ids=None) -> pd.DataFrame:
@@ -108,7 +119,7 @@ class Posterior:
                    "uq_reason": self.reason[i], "uq_converged": bool(self.converged[i]),
                    "uq_acceptance": self.acceptance[i]}
             for name, q in self.quantiles[i].items():
-                unit = PARAMS[name].unit
+                unit = self.unit(i, name)[0]
                 for key, v in zip(QUANTILES, q, strict=True):
                     row[f"{name}_{key} [{unit}]"] = v
                 row[f"{name}_sd [{unit}]"] = self.sd[i][name]
@@ -152,7 +163,7 @@ def posterior_summary(post: Posterior, ids=None) -> SummaryTable:
     for i in range(post.n_trials):
         for name, q in post.quantiles[i].items():
             row = {"trial": i if ids is None else ids[i], "model": post.model[i], "param": name,
-                   "unit": PARAMS[name].unit, "method": post.method[i],
+                   "unit": post.unit(i, name)[0], "method": post.method[i],
                    "converged": bool(post.converged[i]), "sd": post.sd[i][name],
                    "tau": post.tau[i][name], "ess": post.ess[i][name],
                    "rhat": post.rhat[i][name],
@@ -191,7 +202,7 @@ def corner_plot(post: Posterior, i: int, path) -> None:
 
     draws = post.samples(i)
     draws = draws.loc[:, draws.nunique() > 1]  # parameters held fixed have no range to plot
-    labels = [f"{n} [{PARAMS[n].unit}]" for n in draws.columns]
+    labels = [f"{n} [{post.unit(i, n)[0]}]" for n in draws.columns]
     fig = corner.corner(draws.to_numpy(), labels=labels, quantiles=[0.16, 0.5, 0.84])
     fig.savefig(path, dpi=80)
     plt.close(fig)
