@@ -265,7 +265,7 @@ def _say_rigs(saved: dict, model: Path, recordings: list) -> None:
         return
     notes = unseen_rigs(trained, recordings)
     for note in notes:
-        typer.echo(note, err=True)
+        typer.echo(f"{note} (the 'problems' column names each recording)", err=True)
     if notes:
         pipeline = saved["pipeline"]
         beta = getattr(pipeline, "shift_beta_", None)
@@ -289,21 +289,16 @@ def _check_channels(saved: dict, model: Path, recordings: list) -> None:
 
 
 def _other_rates(saved: dict, model: Path, recordings: list) -> dict[str, str]:
-    """Recordings at a sample rate the model was not trained at, each named on stderr:
-    name -> ``[other_rate] ...`` (empty for a model file that does not record its rates)."""
+    """Recordings at a sample rate the model was not trained at, for the 'problems' column:
+    name -> ``[other_rate] ...`` (empty for a model file that does not record its rates).
+    Stderr's rig line (:func:`_say_rigs`) says it once per rig."""
     rates = saved.get("sample_rates_hz")
     if not rates:
         return {}
     trained = ", ".join(f"{r:g}" for r in rates)
-    out = {r.name: f"[other_rate] recorded at {r.sample_rate_hz:g} Hz; {model.name} was "
-                   f"trained at {trained} Hz: its features, and so the probabilities, may differ"
-           for r in recordings if not any(abs(r.sample_rate_hz / x - 1) < 1e-6 for x in rates)}
-    for name, words in out.items():
-        typer.echo(f"{name}: {words}", err=True)
-    if out:
-        typer.echo(f"{len(out)} of {len(recordings)} recording(s) at a sample rate the model was "
-                   "not trained at (named above; the 'problems' column says so)", err=True)
-    return out
+    return {r.name: f"[other_rate] recorded at {r.sample_rate_hz:g} Hz; {model.name} was "
+                    f"trained at {trained} Hz: its features, and so the probabilities, may differ"
+            for r in recordings if not any(abs(r.sample_rate_hz / x - 1) < 1e-6 for x in rates)}
 
 
 def evaluate(
