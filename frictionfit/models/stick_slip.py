@@ -42,9 +42,8 @@ def _horner(x2, coefs):
 def _sin_half_period(x):
     """``sin(x)`` for ``|x| <= pi/2``, exact to rounding, as a polynomial.
 
-    XLA's general ``cos`` (range reduction included) took ~80 % of the drive and
-    half of a batched log-posterior evaluation on the CPU; this is ~5x cheaper.
-    Its derivative is the matching ``cos`` polynomial (differentiating the
+    It replaces XLA's general trigonometry, whose range reduction dominates the drive's
+    cost on the CPU. Its derivative is the matching ``cos`` polynomial (differentiating the
     Horner steps instead would cost two operations per step and tangent).
     """
     return x * _horner(x * x, _SIN_TAYLOR)
@@ -120,8 +119,8 @@ def contact_force(
     ``(force, state)``, so a drive simulated piece by piece, parameters changing between
     pieces, is one continuous history; ``state`` is ``(z, slip, (w per Maxwell branch),
     last x, last direction, travel)``, displacements in mm); every update is exact for any
-    interval and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest
-    on a 2-core CPU for batched Jacobians). The whole-measurement fits take this
+    interval and stable for any stiffness. ``unroll``: scan unrolling (the default suits
+    batched Jacobians on a small CPU). The whole-measurement fits take this
     recurrence's forward-mode Jacobian from a compiled twin
     (:mod:`frictionfit.models._forward`, tested against ``jax.jacfwd`` of this scan): a
     change to the law here must be made there too.
