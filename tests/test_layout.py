@@ -70,10 +70,6 @@ def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
 # Docstrings say what the code does, its units and its contract: measured figures, timings
 # and pointers into the design log live in docs/ (docs/results.md, docs/decisions.md).
 _FIGURES = re.compile(r"\bmeasured\b|\b\d+(\.\d+)?x (faster|slower|cheaper|dearer)|decisions\.md")
-#: Folders still being cleaned by the fit layer's rework: their docstrings are expected to
-#: fail the check until it lands. Empty this tuple then (a strict xfail reports a folder
-#: that already passes).
-FIGURES_ALLOWED_FOR_NOW = ("fit", "models")
 #: The benchmarks measure: their docstrings may say what and how.
 _FIGURES_EXEMPT = ("bench",)
 
@@ -106,9 +102,7 @@ _AREAS = sorted({_area(p) for p in (REPO_ROOT / "frictionfit").rglob("*.py")}
                 - set(_FIGURES_EXEMPT))
 
 
-@pytest.mark.parametrize("area", [
-    pytest.param(a, marks=pytest.mark.xfail(strict=True, reason="cleaned by the fit rework"))
-    if a in FIGURES_ALLOWED_FOR_NOW else a for a in _AREAS])
+@pytest.mark.parametrize("area", _AREAS)
 def test_docstrings_quote_no_measurements(area):
     files = sorted(p for p in (REPO_ROOT / "frictionfit").rglob("*.py") if _area(p) == area)
     hits = [h for p in files for h in _docstring_figures(p)]
