@@ -1,5 +1,5 @@
 """Package-wide conventions: lint, the import-layer contract, a light CLI, docstrings
-without measured figures."""
+without measured figures, functions and modules of a readable length."""
 
 import ast
 import re
@@ -117,3 +117,44 @@ def test_the_figures_check_finds_what_it_names(tmp_path):
     hits = _docstring_figures(probe)
     assert [h.rsplit(": ", 1)[1] for h in hits] == ["'5x faster'", "'decisions.md'",
                                                     "'measured'"]
+
+
+#: Longest function (def line to the body's last line, docstring included) anywhere in the
+#: package, and longest module of the fit and model layers, in lines.
+MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 400
+_SIZED_AREAS = ("fit", "models")
+
+
+def _too_long(path: Path, sized: bool) -> list[str]:
+    """``file:line name: n lines`` of every function in ``path`` over
+    :data:`MAX_FUNCTION_LINES`, and of the module itself over :data:`MAX_MODULE_LINES`
+    where ``sized``."""
+    text = path.read_text()
+    hits = [f"{path.name}:{node.lineno} {node.name}: {node.end_lineno - node.lineno + 1} lines"
+            for node in ast.walk(ast.parse(text))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]
+    n_lines = len(text.splitlines())
+    if sized and n_lines > MAX_MODULE_LINES:
+        hits.append(f"{path.name}: module of {n_lines} lines")
+    return hits
+
+
+def test_functions_and_modules_stay_short():
+    package = REPO_ROOT / "frictionfit"
+    hits = [h for p in sorted(package.rglob("*.py"))
+            for h in _too_long(p, _area(p) in _SIZED_AREAS)]
+    assert not hits, (f"split by meaning: functions over {MAX_FUNCTION_LINES} lines, modules "
+                      f"of fit/ and models/ over {MAX_MODULE_LINES}:\n" + "\n".join(hits))
+
+
+def test_the_length_check_finds_what_it_names(tmp_path):
+    probe = tmp_path / "probe.py"
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    probe.write_text(f"def long():\n{body}\n\ndef short():\n    return 1\n"
+                     + "\n" * MAX_MODULE_LINES)
+    assert _too_long(probe, sized=False) == [f"probe.py:1 long: {MAX_FUNCTION_LINES + 1} lines"]
+    assert _too_long(probe, sized=True)[-1].startswith("probe.py: module of ")
+    probe.write_text("def short():\n    return 1\n")
+    assert _too_long(probe, sized=True) == []
