@@ -101,8 +101,8 @@ MEASURED = (("rise", "N"), ("static", "N"), ("relaxed_frac", "1"), ("t_relax", "
 #: The first six are the basic quantities; the shape quantities follow (``shape=True``).
 N_BASIC = 6
 #: Names of the relaxation quantities (after the channel), left out with ``relaxation=False``:
-#: fitted ``relax_frac``, ``tau`` and ``drag``; read off the force, ``relaxed_frac``,
-#: ``t_relax`` and ``relax_<ms>ms``.
+#: fitted ``relax_frac``, ``tau`` and ``drag``; measured ``relaxed_frac``, ``t_relax`` and
+#: ``relax_<ms>ms``.
 _RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)\b|(out|back)_(relaxed_frac|t_relax|"
                          r"relax_\d+ms)\b)")
 #: Delays after the peak (s) of the normalised relaxation curve ``relax_<ms>ms``.
