@@ -84,21 +84,13 @@ def _items(recordings, channels: Sequence[str], model, decimate: int,
 
 
 def fit_recordings(
-    recordings: Recording | MeasurementData | Sequence[Recording | MeasurementData],
-    *,
-    channels: Sequence[str] = RUBBING_CHANNELS,
-    model: MeasurementModel | str = "auto",
+    recordings: Recording | MeasurementData | Sequence[Recording | MeasurementData], *,
+    channels: Sequence[str] = RUBBING_CHANNELS, model: MeasurementModel | str = "auto",
     solver: BatchedLevenbergMarquardt = WHOLE_FIT_SOLVER,
-    rig: str | Mapping[str, SessionRig] = "recording",
-    creep: str = "recording",
-    timing: str = "movement",
-    fix: Mapping[str, float | np.ndarray] | None = None,
-    u0: np.ndarray | None = None,
-    decimate: int = 1,
-    skip_motions: int = 1,
-    max_steps: int = 400,
-    pool_size: int = 16,
-    progress: bool | None = None,
+    rig: str | Mapping[str, SessionRig] = "recording", creep: str = "recording",
+    timing: str = "movement", fix: Mapping[str, float | np.ndarray] | None = None,
+    u0: np.ndarray | None = None, decimate: int = 1, skip_motions: int = 1,
+    max_steps: int = 400, pool_size: int = 16, progress: bool | None = None,
     refit_rig_outliers: bool = True,
 ) -> WholeFit:
     """Fit each recording's channels whole: one rig (the motor's timing), one sensor
@@ -167,5 +159,5 @@ def fit_recordings(
     items = _items(recordings, channels, model, decimate, skip_motions)
     return _as_whole(fit_whole(items, model=model, solver=solver, rig=rig, creep=creep,
                                timing=timing, fix=fix, u0=u0, max_steps=max_steps,
-                               pool_size=pool_size,
-                               progress=progress, refit_rig_outliers=refit_rig_outliers))
+                               pool_size=pool_size, progress=progress,
+                               refit_rig_outliers=refit_rig_outliers))

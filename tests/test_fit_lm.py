@@ -68,10 +68,10 @@ def test_threads_do_not_change_results():
 def test_optimistix_solvers_run_in_one_host_thread():
     """Their batched QR (jaxlib's LAPACK kernel splits a batch over XLA's thread pool and
     waits for the parts) deadlocked when two host threads ran it: ``bench fit`` hung."""
-    from frictionfit.fit._batch import _solver_settings
+    from frictionfit.fit._solver_choice import solver_settings
 
     def threads(solver):
-        return _solver_settings(solver, 1e-6, 1e-6, 1e-6, 100, 4, 16, threads=2).threads
+        return solver_settings(solver, 1e-6, 1e-6, 1e-6, 100, 4, 16, threads=2).threads
 
     assert [threads(s) for s in ("optx-lm", "dogleg", "gauss-newton")] == [1, 1, 1]
     assert threads("lm") == 2

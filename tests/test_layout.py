@@ -1,5 +1,5 @@
 """Package-wide conventions: lint, the import-layer contract, a light CLI, docstrings
-without measured figures."""
+without measured figures, functions and modules of a readable length."""
 
 import ast
 import re
@@ -70,10 +70,6 @@ def test_a_fit_without_posteriors_imports_neither_emcee_nor_scipy_stats():
 # Docstrings say what the code does, its units and its contract: measured figures, timings
 # and pointers into the design log live in docs/ (docs/results.md, docs/decisions.md).
 _FIGURES = re.compile(r"\bmeasured\b|\b\d+(\.\d+)?x (faster|slower|cheaper|dearer)|decisions\.md")
-#: Folders still being cleaned by the fit layer's rework: their docstrings are expected to
-#: fail the check until it lands. Empty this tuple then (a strict xfail reports a folder
-#: that already passes).
-FIGURES_ALLOWED_FOR_NOW = ("fit", "models")
 #: The benchmarks measure: their docstrings may say what and how.
 _FIGURES_EXEMPT = ("bench",)
 
@@ -106,9 +102,7 @@ _AREAS = sorted({_area(p) for p in (REPO_ROOT / "frictionfit").rglob("*.py")}
                 - set(_FIGURES_EXEMPT))
 
 
-@pytest.mark.parametrize("area", [
-    pytest.param(a, marks=pytest.mark.xfail(strict=True, reason="cleaned by the fit rework"))
-    if a in FIGURES_ALLOWED_FOR_NOW else a for a in _AREAS])
+@pytest.mark.parametrize("area", _AREAS)
 def test_docstrings_quote_no_measurements(area):
     files = sorted(p for p in (REPO_ROOT / "frictionfit").rglob("*.py") if _area(p) == area)
     hits = [h for p in files for h in _docstring_figures(p)]
@@ -123,3 +117,44 @@ def test_the_figures_check_finds_what_it_names(tmp_path):
     hits = _docstring_figures(probe)
     assert [h.rsplit(": ", 1)[1] for h in hits] == ["'5x faster'", "'decisions.md'",
                                                     "'measured'"]
+
+
+#: Longest function (def line to the body's last line, docstring included) anywhere in the
+#: package, and longest module of the fit and model layers, in lines.
+MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 400
+_SIZED_AREAS = ("fit", "models")
+
+
+def _too_long(path: Path, sized: bool) -> list[str]:
+    """``file:line name: n lines`` of every function in ``path`` over
+    :data:`MAX_FUNCTION_LINES`, and of the module itself over :data:`MAX_MODULE_LINES`
+    where ``sized``."""
+    text = path.read_text()
+    hits = [f"{path.name}:{node.lineno} {node.name}: {node.end_lineno - node.lineno + 1} lines"
+            for node in ast.walk(ast.parse(text))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]
+    n_lines = len(text.splitlines())
+    if sized and n_lines > MAX_MODULE_LINES:
+        hits.append(f"{path.name}: module of {n_lines} lines")
+    return hits
+
+
+def test_functions_and_modules_stay_short():
+    package = REPO_ROOT / "frictionfit"
+    hits = [h for p in sorted(package.rglob("*.py"))
+            for h in _too_long(p, _area(p) in _SIZED_AREAS)]
+    assert not hits, (f"split by meaning: functions over {MAX_FUNCTION_LINES} lines, modules "
+                      f"of fit/ and models/ over {MAX_MODULE_LINES}:\n" + "\n".join(hits))
+
+
+def test_the_length_check_finds_what_it_names(tmp_path):
+    probe = tmp_path / "probe.py"
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    probe.write_text(f"def long():\n{body}\n\ndef short():\n    return 1\n"
+                     + "\n" * MAX_MODULE_LINES)
+    assert _too_long(probe, sized=False) == [f"probe.py:1 long: {MAX_FUNCTION_LINES + 1} lines"]
+    assert _too_long(probe, sized=True)[-1].startswith("probe.py: module of ")
+    probe.write_text("def short():\n    return 1\n")
+    assert _too_long(probe, sized=True) == []

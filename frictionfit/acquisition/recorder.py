@@ -293,6 +293,26 @@ def record(
     # the protocol first: its schedule runs from the first frame (t0), and the files' first
     # writes reach the disk (fsync) in their own time, which a busy disk makes long
     stop_hook = on_start(t0, writer) if on_start is not None else None
+    _start_writing(streams, writer, stop_hook)
+    status, failure = "interrupted", None
+    try:
+        status = _poll(streams, merger, writer, t0, started, stop, duration_s, flush_s,
+                       on_progress)
+    except AcquisitionError as exc:  # the disk refused the rows: the recording stops here
+        status, failure = "failed", exc
+    finally:
+        if stop_hook is not None:
+            stop_hook()
+        summary, failure = _finish(streams, merger, writer, t0, started, status, failure)
+    if failure is not None:
+        raise AcquisitionError(f"{failure}; the recording stopped there")
+    return summary
+
+
+def _start_writing(streams: Sequence[SensorStream], writer: RecordingWriter,
+                   stop_hook: Callable[[], None] | None) -> None:
+    """Start ``writer``'s files; where the disk refuses, stop the protocol, close the streams,
+    say so in the sidecar if it can still be written, and raise."""
     try:
         writer.start()
     except AcquisitionError as exc:
@@ -303,39 +323,44 @@ def record(
         with contextlib.suppress(AcquisitionError):  # say so where the sidecar can still go
             writer._write_sidecar({"status": "failed", "failure": str(exc)})
         raise
+
+
+def _poll(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
+          t0: float, started: float, stop: threading.Event, duration_s: float | None,
+          flush_s: float, on_progress: Callable[[dict[str, Any]], None] | None) -> str:
+    """Merge the streams' frames into ``writer``, flushing every ``flush_s``, until
+    ``duration_s`` after ``t0`` ("complete") or ``stop`` ("interrupted")."""
     last_flush = time.monotonic()
-    status, failure = "interrupted", None
+    while not stop.is_set():
+        _merge_polled(streams, merger, writer, t0)
+        now = time.monotonic()
+        if now - last_flush >= flush_s:
+            _flush(streams, writer, started, on_progress)
+            last_flush = now
+        if duration_s is not None and now - t0 >= duration_s:
+            return "complete"
+        time.sleep(0.005)
+    return "interrupted"
+
+
+def _finish(streams: Sequence[SensorStream], merger: _Merger, writer: RecordingWriter,
+            t0: float, started: float, status: str, failure: Exception | None
+            ) -> tuple[dict[str, Any], Exception | None]:
+    """Write what the streams still hold and close ``writer`` with the ``acquisition``
+    summary; the summary and the failure that stopped the recording (None if none)."""
+    _drain(streams, merger, writer, t0)
     try:
-        while not stop.is_set():
-            _merge_polled(streams, merger, writer, t0)
-            now = time.monotonic()
-            if now - last_flush >= flush_s:
-                _flush(streams, writer, started, on_progress)
-                last_flush = now
-            if duration_s is not None and now - t0 >= duration_s:
-                status = "complete"
-                break
-            time.sleep(0.005)
-    except AcquisitionError as exc:  # the disk refused the rows: the recording stops here
+        writer.write_rows()
+    except AcquisitionError as exc:  # the disk still refuses: its latest words
         status, failure = "failed", exc
-    finally:
-        if stop_hook is not None:
-            stop_hook()
-        _drain(streams, merger, writer, t0)
-        try:
-            writer.write_rows()
-        except AcquisitionError as exc:  # the disk still refuses: its latest words
-            status, failure = "failed", exc
-        summary = _summary(streams, writer, status, started)
-        if failure is not None:
-            summary["failure"] = str(failure)
-        try:
-            writer.close(summary)
-        except AcquisitionError as exc:
-            failure = exc
+    summary = _summary(streams, writer, status, started)
     if failure is not None:
-        raise AcquisitionError(f"{failure}; the recording stopped there")
-    return summary
+        summary["failure"] = str(failure)
+    try:
+        writer.close(summary)
+    except AcquisitionError as exc:
+        failure = exc
+    return summary, failure
 
 
 def _first_frames(streams: Sequence[SensorStream]) -> tuple[float, float]:

@@ -24,37 +24,53 @@ from frictionfit.cli._load import (
 
 #: Options that only per-motion fits (``--motions``) take.
 _PER_MOTION = ("--chains", "--tie", "--scheduler", "--n-starts", "--solver")
+_WHOLE_HELP = ("--whole (default): fit each rubbing measurement whole, one row per recording and "
+               "channel: one rig (motor timing), sensor (offset, drift, leak) and contact law, "
+               "the law's state carried from stroke to stroke. --motions: fit every "
+               "non-preparatory motion x channel on its own, one row per trial (single strokes, "
+               "multi-start, Dask).")
+_RIG_HELP = ("Whole fits: recording (the motor's timing fitted for each recording and channel; a "
+             "fit whose movement duration stands out of the others of its session and channel in "
+             "the batch, five or more, is fitted again from their median profile, the better BIC "
+             "kept), session (the movement's duration and acceleration held at the median of each "
+             "session's fits, then fitted again: one motor profile all day, the spread of the "
+             "session's profiles carried into the stderrs; the latency stays per recording) or a "
+             ".json file of session profiles written by --save-rig (a recording fitted later in "
+             "the day holds its day's profile).")
+_CREEP_HELP = ("Whole fits: recording (the finger's creep, the slow relaxation branch's time "
+               "constant tau2, free in every fit) or session (fitted free first, then held at the "
+               "median of each session's fits of the channel in the batch, its spread carried "
+               "into the stderrs; a recording alone in its session keeps its own).")
+_PRIOR_HELP = ("NAME=CENTRE,SD: a Normal prior (repeatable); for a log-scale parameter CENTRE is "
+               "the median and SD that of its log, e.g. --prior ramp=0.15,0.3 (default "
+               "ramp=0.125,0.3); NAME=none: flat over its bounds.")
+_UNCERTAINTY_HELP = ("Posterior per row: none, laplace (quantiles of the fit's Gaussian, "
+                     "milliseconds a row), emcee (slow: about a second a motion, ~15 s a whole "
+                     "fit's row; check uq_converged) or auto (Laplace; emcee where Laplace is "
+                     "doubtful).")
+
+
+def _check_uncertainty(uncertainty: str) -> None:
+    """A BadParameter unless ``uncertainty`` is none or a posterior method; the samplers
+    (emcee, scipy.stats: ~0.7 s) are imported only when one is asked for."""
+    if uncertainty != "none":
+        from frictionfit.uncertainty import METHODS
+
+        if uncertainty not in METHODS:
+            raise typer.BadParameter(f"{uncertainty!r}: choose none, {', '.join(METHODS[:-1])} "
+                                     f"or {METHODS[-1]}",
+                                     param_hint="--uncertainty")
 
 
 def fit(
     paths: list[Path] = typer.Argument(..., help="Recordings (<name>.csv) or folders of them."),
-    whole: bool = typer.Option(True, "--whole/--motions", help="--whole (default): fit each "
-                               "rubbing measurement whole, one row per recording and channel: "
-                               "one rig (motor timing), sensor (offset, drift, leak) and contact "
-                               "law, the law's state carried from stroke to stroke. --motions: "
-                               "fit every non-preparatory motion x channel on its own, one row "
-                               "per trial (single strokes, multi-start, Dask)."),
+    whole: bool = typer.Option(True, "--whole/--motions", help=_WHOLE_HELP),
     model: str = typer.Option("auto", help=f"Contact law. Whole: {WHOLE_LAWS_HELP} "
                               "--motions: auto, elastic_plastic, stick_slip, relaxation or rich."),
-    rig: str = typer.Option("recording", help="Whole fits: recording (the motor's timing "
-                            "fitted for each recording and channel; a fit whose movement "
-                            "duration stands out of the others of its session and channel "
-                            "in the batch, five or more, is fitted again from their median "
-                            "profile, the better BIC kept), session (the "
-                            "movement's duration and acceleration held at the median of each "
-                            "session's fits, then fitted again: one motor profile all day, "
-                            "the spread of the session's profiles carried into the stderrs; "
-                            "the latency stays per recording) or a .json file of session "
-                            "profiles written by --save-rig (a recording fitted later in the "
-                            "day holds its day's profile)."),
+    rig: str = typer.Option("recording", help=_RIG_HELP),
     save_rig: Path = typer.Option(None, help="Whole fits with --rig session: write each "
                                   "session's motor profile to this .json file."),
-    creep: str = typer.Option("recording", help="Whole fits: recording (the finger's creep, "
-                              "the slow relaxation branch's time constant tau2, free in every "
-                              "fit) or session (fitted free first, then held at the median of "
-                              "each session's fits of the channel in the batch, its spread "
-                              "carried into the stderrs; a recording alone in its session "
-                              "keeps its own)."),
+    creep: str = typer.Option("recording", help=_CREEP_HELP),
     channel: list[str] = typer.Option([], help="Channels to fit (repeatable; whole fits: "
                                       "default thumb_x and index_x; --motions: every channel). "
                                       "A dead (constant) channel is skipped by name."),
@@ -69,16 +85,9 @@ def fit(
     fix: list[str] = typer.Option([], help="NAME=VALUE: hold a parameter at a physical value "
                                   "(repeatable; with the auto model, in the laws that have it), "
                                   "e.g. --fix tau=0.1."),
-    prior: list[str] = typer.Option([], help="NAME=CENTRE,SD: a Normal prior (repeatable); for "
-                                    "a log-scale parameter CENTRE is the median and SD that of "
-                                    "its log, e.g. --prior ramp=0.15,0.3 (default ramp=0.125,0.3"
-                                    "); NAME=none: flat over its bounds."),
+    prior: list[str] = typer.Option([], help=_PRIOR_HELP),
     strict: bool = typer.Option(False, help=STRICT_HELP),
-    uncertainty: str = typer.Option("none", help="Posterior per row: none, laplace (quantiles "
-                                    "of the fit's Gaussian, milliseconds a row), emcee (slow: "
-                                    "about a second a motion, ~15 s a whole fit's row; check "
-                                    "uq_converged) or auto (Laplace; emcee where Laplace is "
-                                    "doubtful)."),
+    uncertainty: str = typer.Option("none", help=_UNCERTAINTY_HELP),
     chains: Path = typer.Option(None, help="--motions with emcee: save the chains to this HDF5 "
                                 "file."),
     solver: str = typer.Option("lm", help="--motions: lm (frictionfit's batched LM, fastest), "
@@ -107,13 +116,7 @@ def fit(
     if plot is not None:
         make_folder(plot, "--plot")
     files = _files(paths)
-    if uncertainty != "none":  # only then import the samplers (emcee, scipy.stats: ~0.7 s)
-        from frictionfit.uncertainty import METHODS
-
-        if uncertainty not in METHODS:
-            raise typer.BadParameter(f"{uncertainty!r}: choose none, {', '.join(METHODS[:-1])} "
-                                     f"or {METHODS[-1]}",
-                                     param_hint="--uncertainty")
+    _check_uncertainty(uncertainty)
     given = dict(zip(_PER_MOTION, (chains is not None, tie, scheduler, n_starts != 1,
                                    solver != "lm"), strict=True))
     if whole:

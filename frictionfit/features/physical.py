@@ -22,7 +22,7 @@ what :func:`frictionfit.fit.lateral.fit_lateral` finds: the ``gain`` (1, the lat
 over the fitted tangential force, signed) and the lateral stick-slip ``slip_noise`` (N,
 floored as the rubbing channels'); never the lateral sensor's offset, drift or leak.
 
-**Measured** (``measured=True``), per movement phase (``out``, ``back``), from the
+**Read off the force** (``measured=True``), per movement phase (``out``, ``back``), from the
 signal after a moving average of 9 samples, relative to its value ``x0`` at the
 command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
 ``static`` (N, the deviation at the end of the relaxation), ``relaxed_frac``
@@ -107,7 +107,7 @@ _RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)(_stderr)?\b"
                          r"|(out|back)_(relaxed_frac|t_relax|relax_\d+ms)\b)")
 #: Delays after the peak (s) of the normalised relaxation curve ``relax_<ms>ms``.
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
-#: Window (s) after the command in which the stick-slip ripple is measured.
+#: Window (s) after the command in which the stick-slip ripple is read.
 RIPPLE_S = 0.25
 
 

@@ -11,9 +11,9 @@ refilled pools of slots. Results are in physical units with lmfit-style statisti
 identifiability flags and a status per row.
 """
 
-from frictionfit.fit._batch import SOLVERS as SOLVERS
 from frictionfit.fit._batch import fit_trials as fit_trials
 from frictionfit.fit._guess import initial_guess as initial_guess
+from frictionfit.fit._solver_choice import SOLVERS as SOLVERS
 from frictionfit.fit.measurement_data import MeasurementData as MeasurementData
 from frictionfit.fit.measurement_data import measurement_data as measurement_data
 from frictionfit.fit.plot import plot_fit as plot_fit

@@ -12,21 +12,20 @@ import optimistix as optx
 import pandas as pd
 from tqdm.auto import tqdm
 
-from frictionfit._system import available_cores
 from frictionfit.errors import FitError, Status
 from frictionfit.fit._guess import initial_guess, multi_starts, saturated_samples, trial_keys
 from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit._optx import solve_pooled
 from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
+from frictionfit.fit._solver_choice import SolverSettings, solver_settings
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult, param_table
-from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL
 from frictionfit.fit.trials import Trials, as_trials
 from frictionfit.models import FAMILY, PARAMS, get_model
 
-__all__ = ["SOLVERS", "fit_trials"]
+__all__ = ["fit_trials"]
 
-SOLVERS = ("lm", "optx-lm", "dogleg", "gauss-newton")
 #: Fewest trials for which a fit shows a progress bar (on a terminal).
 PROGRESS_MIN_TRIALS = 64
 
@@ -34,18 +33,6 @@ PROGRESS_MIN_TRIALS = 64
 def _at_optimum(model, free, u, data, chunk):
     """Masked residuals and ``J^T J`` (free parameters) at ``u``, in padded chunks."""
     return map_chunks(jacobian_fn(model, free), (u[:, list(free)], data), chunk)
-
-
-@dataclass(frozen=True)
-class SolverSettings:
-    """How each member is solved: the solver (and its name), step budget and pools."""
-
-    name: str
-    solver: optx.AbstractLeastSquaresSolver
-    max_steps: int
-    segment: int  # steps per compiled call, between refills of the pool
-    chunk_size: int
-    threads: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,43 +233,14 @@ def fit_trials(
     """
     start = time.perf_counter()
     trials = as_trials(y, t, drive_input, drive=drive, direction=direction)
-    solve = _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
-                             threads)
+    solve = solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
+                            threads)
     how = _member_settings(trials.drive, stroke_mm, priors, n_starts, seed, fix, tie, groups)
     batch = _prepare(trials)
     members = _members(model, how)
     fits, inits = _fit_family(members, batch, solve, how, None if model == "auto" else u0,
                               tie, groups)
     return _assemble(fits, inits, batch, how, solve.name, model == "auto", start)
-
-
-def _solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
-                     threads) -> SolverSettings:
-    """The solver object and its name: a name from SOLVERS, or an object as given."""
-    if isinstance(solver, str):
-        named = {"lm": lambda: BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol),
-                 "optx-lm": lambda: optx.LevenbergMarquardt(rtol=rtol, atol=atol),
-                 "dogleg": lambda: optx.Dogleg(rtol=rtol, atol=atol),
-                 "gauss-newton": lambda: optx.GaussNewton(rtol=rtol, atol=atol)}
-        if solver not in named:
-            raise FitError(f"unknown solver {solver!r}; choose from {SOLVERS} or give an "
-                           "optimistix least-squares solver")
-        name, solver = solver, named[solver]()
-    elif isinstance(solver, optx.AbstractLeastSquaresSolver):
-        name = _NAMES.get(type(solver), type(solver).__name__)
-    else:
-        raise FitError(f"solver must be a name from {SOLVERS} or an optimistix "
-                       f"least-squares solver, not {type(solver).__name__}")
-    threads = available_cores() if threads is None else max(int(threads), 1)
-    return SolverSettings(
-        name=name, solver=solver, max_steps=max_steps, segment=steps_per_round,
-        chunk_size=chunk_size,
-        threads=threads if isinstance(solver, BatchedLevenbergMarquardt) else 1)
-
-
-#: The names of SOLVERS' solver classes, for FitResult.solver.
-_NAMES = {BatchedLevenbergMarquardt: "lm", optx.LevenbergMarquardt: "optx-lm",
-          optx.Dogleg: "dogleg", optx.GaussNewton: "gauss-newton"}
 
 
 def _member_settings(drive, stroke_mm, priors, n_starts, seed, fix, tie,

@@ -4,8 +4,8 @@ law after the first starts from.
 One law is fitted from the data; each other law is fitted from an optimum, on the items
 where it can still be chosen (:data:`GROWN_FROM`, :data:`SHRUNK_FROM`). Per item the first
 law (simplest first) whose BIC is within :data:`~frictionfit.fit._stats.BIC_TIE` of the
-best is chosen, a law without a static peak only where no law's peak is measured
-(:data:`PEAK_Z`). The BIC is the one likelihood's (:mod:`frictionfit.fit._noise`).
+best is chosen, a law without a static peak only where no law's peak stands out of its
+noise (:data:`PEAK_Z`). The BIC is the one likelihood's (:mod:`frictionfit.fit._noise`).
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def peak_measured(models: list[MeasurementModel], fits: list[FitResult],
                    rows: list[np.ndarray], n: int) -> np.ndarray:
     """Per item (of ``n``), whether a fitted ``f_static_excess`` (one fit of each law in
     ``fits``, of the items ``rows``) stands :data:`PEAK_Z` stderr above zero; a peak on
-    its bound (no width: stderr 0) is not measured."""
+    its bound (no width: stderr 0) does not stand."""
     peak = np.zeros(n, bool)
     for m, r, at in zip(models, fits, rows, strict=True):
         if "f_static_excess" in m.param_names and r.n_trials:
@@ -93,7 +93,7 @@ def choice(models: list[MeasurementModel], fits: list[FitResult], rows: list[np.
             ) -> tuple[np.ndarray, pd.DataFrame]:
     """Per item, the index of the first law whose BIC is within ``BIC_TIE`` of the best (one
     fit of each law in ``fits``, of the items ``rows``), a law without a static peak only
-    where no law's peak is measured (:func:`peak_measured`); and the BIC table (NaN where a
+    where no law's peak stands (:func:`peak_measured`); and the BIC table (NaN where a
     law was not fitted)."""
     n = max(at.max(initial=-1) for at in rows) + 1
     bic = pd.DataFrame({m.name: np.full(n, np.nan) for m in models})

@@ -43,7 +43,15 @@ from frictionfit.models.measurement import (
 )
 from frictionfit.models.stick_slip import maxwell_branches
 
-__all__ = ["PROFILE_MIN_DROP", "RESTART_FRACTION", "fit_batch", "with_solver_tolerances"]
+__all__ = ["FIRST_PASS", "PROFILE_MIN_DROP", "RESTART_FRACTION", "UNPOLISHED",
+           "WHOLE_FIT_SOLVER", "fit_batch", "with_solver_tolerances"]
+
+#: The solver of a whole fit's final passes (its tolerances: relative, MINPACK's ``ftol``
+#: and ``xtol``). A first pass that a second one polishes runs at ten times its
+#: ``ftol`` and ``rtol``; a fit that nothing polishes at a tenth of them.
+WHOLE_FIT_SOLVER = BatchedLevenbergMarquardt(ftol=1e-5, rtol=1e-7)
+#: Factors on the solver's tolerances for a first pass, and for a fit nothing polishes.
+FIRST_PASS, UNPOLISHED = 10.0, 0.1
 
 
 def _start(model: MeasurementModel, items: Sequence[MeasurementData], fix: Mapping,

@@ -16,7 +16,7 @@ stroke) and ``gain`` (1: lateral over tangential force, signed). The problem is 
 weighted least squares on the lateral channel's blocks (the weights and the first motion
 left out as in the rubbing channel's fit); standard errors as the whole fit's, from the
 long-run variance of the residuals' AR(1) noise (:mod:`frictionfit.fit._noise`). What
-the lateral law leaves, the lateral stick-slip, is measured in its residuals as the
+the lateral law leaves, the lateral stick-slip, is read off its residuals as the
 rubbing channel's is: ``slip_noise`` (N,
 :func:`~frictionfit.fit.derived.slip_noise`).
 """

@@ -1,5 +1,6 @@
 """Whole fits of rubbing measurements: one rig, sensor and contact law per recording and
-channel (:func:`fit_whole`), and each motion refitted on its own (:func:`refit_motions`).
+channel (:func:`fit_whole`); each motion refitted on its own is
+:func:`~frictionfit.fit.motions.refit_motions`.
 
 :func:`fit_whole` fits :class:`~frictionfit.models.MeasurementModel` to every item with the
 batched Levenberg-Marquardt of :class:`~frictionfit.fit.solver.BatchedLevenbergMarquardt`
@@ -18,7 +19,6 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
 
 import numpy as np
 
@@ -34,10 +34,17 @@ from frictionfit.fit._law_choice import (
     peak_measured,
 )
 from frictionfit.fit._timing import with_movement_timing
-from frictionfit.fit._whole_batch import fit_batch, with_solver_tolerances
+from frictionfit.fit._whole_batch import (
+    FIRST_PASS,
+    UNPOLISHED,
+    WHOLE_FIT_SOLVER,
+    fit_batch,
+    with_solver_tolerances,
+)
 from frictionfit.fit._whole_problem import normal_fn, residual_fn, stack_items
 from frictionfit.fit.measurement_data import MeasurementData, measurement_data
-from frictionfit.fit.result import concat_results, take_trials
+from frictionfit.fit.motions import refit_motions
+from frictionfit.fit.result import take_trials
 from frictionfit.fit.session import (
     CREEP,
     SESSION_RIG,
@@ -56,14 +63,6 @@ from frictionfit.segmentation import robust_sd
 __all__ = ["AUTO_LAWS", "WHOLE_FIT_SOLVER", "MeasurementData", "fit_measurements",
            "fit_motions", "fit_whole", "measurement_data", "normal_fn", "refit_motions",
            "residual_fn", "stack_items"]
-
-#: The solver of a whole fit's final passes (its tolerances: relative, MINPACK's ``ftol``
-#: and ``xtol``). A first pass that a second one polishes runs at ten times its
-#: ``ftol`` and ``rtol``; a fit that nothing polishes at a tenth of them.
-WHOLE_FIT_SOLVER = BatchedLevenbergMarquardt(ftol=1e-5, rtol=1e-7)
-#: Factors on the solver's tolerances for a first pass, and for a fit nothing polishes.
-FIRST_PASS, UNPOLISHED = 10.0, 0.1
-
 
 def fit_whole(
     items: Sequence[MeasurementData],
@@ -354,59 +353,6 @@ def _broadcast(fix: Mapping, n: int, rows: np.ndarray | None = None) -> dict:
     """``fix=`` for :func:`_fit`: each held value as one per item (of ``n``), of ``rows``."""
     pick = slice(None) if rows is None else rows
     return {"fix": {name: np.broadcast_to(v, (n,))[pick] for name, v in fix.items()}}
-
-
-
-#: Fewest usable blocks for a motion to be refitted on its own (a motion has ~700).
-MIN_MOTION_BLOCKS = 100
-#: Parameters of the rig and the sensor: held when single motions are refitted.
-SETUP = ("offset", "drift", "leak", *RIG)
-
-
-def _motion_windows(result: MeasurementFit, i: int) -> list[tuple[int, np.ndarray]]:
-    """Row ``i``'s motions with enough fitted blocks: ``(motion number, weights)``, the
-    weights zero outside the motion's window (from its out command to the next)."""
-    d = result.items[i]
-    outs = d.commands[d.signs > 0]
-    windows = []
-    for m, (a, b) in enumerate(zip(outs, [*outs[1:], np.inf], strict=True)):
-        weight = np.where((d.t >= a) & (d.t < b), d.weight, 0.0)
-        if np.count_nonzero(weight) >= MIN_MOTION_BLOCKS:
-            windows.append((m, weight))
-    return windows
-
-
-def refit_motions(result: MeasurementFit, *, max_steps: int = 100, pool_size: int = 16,
-                  progress: bool | None = False) -> MeasurementFit:
-    """Each fitted motion of each row of ``result`` on its own: the row's law refitted on
-    the motion's window, rig and sensor (:data:`SETUP`) and the kinetic level's trend
-    (``wear``: one motion cannot tell it from the level) held at the whole fit's values,
-    from the whole fit's optimum; the earlier motions are still simulated. Each motion's
-    ``f_kin`` is thus its level referred to the whole fit's reference point. Returns one
-    row per motion (with fewer than :data:`MIN_MOTION_BLOCKS` blocks: none), with
-    ``item_of`` (the row refitted) and ``motion_of`` (the motion's number)."""
-    parts = []
-    for model in dict.fromkeys(result.fitted_models):
-        held = [n for n in (*SETUP, "wear") if n in model.param_names]
-        sub, fixed, starts, item_of, motion_of = [], {n: [] for n in held}, [], [], []
-        for i in range(result.n_trials):
-            if result.member(i) != model:
-                continue
-            for m, weight in _motion_windows(result, i):
-                sub.append(replace(result.items[i], weight=weight))
-                starts.append(result.u[i])
-                for n in held:
-                    fixed[n].append(result.values.at[i, n])
-                item_of.append(i)
-                motion_of.append(m)
-        if sub:
-            part = fit_batch(sub, model=model, fix={n: np.array(v) for n, v in fixed.items()},
-                             u0=np.stack(starts), max_steps=max_steps, pool_size=pool_size,
-                             progress=progress,
-                             solver=with_solver_tolerances(WHOLE_FIT_SOLVER, UNPOLISHED))
-            part.item_of, part.motion_of = np.array(item_of), np.array(motion_of)
-            parts.append(part)
-    return concat_results(parts)
 
 
 def _deprecated(old: str, new: str) -> None:

@@ -133,9 +133,9 @@ class MeasurementFit(FitResult):
                    progress: bool | None = False) -> MeasurementFit:
         """Each fitted motion of each row refitted on its own (rig, sensor and ``wear``
         held at the whole fit's values, from its optimum): one row per motion, with
-        :attr:`item_of` and :attr:`motion_of` (:func:`~frictionfit.fit.measurement.
+        :attr:`item_of` and :attr:`motion_of` (:func:`~frictionfit.fit.motions.
         refit_motions`)."""
-        from frictionfit.fit.measurement import refit_motions
+        from frictionfit.fit.motions import refit_motions
 
         return refit_motions(self, max_steps=max_steps, pool_size=pool_size,
                              progress=progress)

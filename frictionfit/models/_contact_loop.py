@@ -72,6 +72,46 @@ def _constants(x, p, lanes):
 _SAME_INTERVAL = 1e-9
 
 
+# The helpers of :func:`_one` are inlined into it (numba IR): the loop compiles as one body.
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _limit_tangents(head, p, lanes, limit, k, scale, to_half, decay, s):
+    """A sliding sample's limit's tangents: each parameter's own term, written into ``head``
+    (``to_half``: half the total travel minus the travel so far, mm); returns the factor of
+    the slip's tangent (0 without a static peak)."""
+    i_k, i_fk, i_fse, i_sl, _, _, _, _, _, i_wear = lanes
+    head[i_k] = -limit / k
+    head[i_fk] = scale
+    if i_wear >= 0:
+        head[i_wear] = p[i_fk] * scale * to_half
+    if i_fse < 0:
+        return 0.0
+    length = p[i_sl]
+    head[i_fse] = decay
+    head[i_sl] = p[i_fse] * decay * s / length**2
+    return p[i_fse] * decay / length
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _through_branches(j, dzn, dz, dw, dw2, a1, g1, a2, g2, k, rf, w2_frac, rate):
+    """Lane ``j``'s tangent of the stretch, ``dzn``, carried through both Maxwell branches
+    (``dz``, ``dw``, ``dw2`` updated in place); returns the lane's tangent of the force."""
+    dw[j] = dzn + a1 * (dw[j] - dz[j]) - (dzn - dz[j]) * g1
+    dw2[j] = dzn + a2 * (dw2[j] - dz[j]) - (dzn - dz[j]) * g2
+    out = k * (dzn - rf * dw[j] - w2_frac * dw2[j]) + rate * (dzn - dz[j])
+    dz[j] = dzn
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _in_tau(out, i_tau, a, h, dg, w, z, zn, weight):
+    """A Maxwell branch's own term in its time constant: taken off the force's tangent
+    ``out[i_tau]`` (``weight``: ``k`` times the branch's share); returns the term, which the
+    branch's own tangent in its time constant gains."""
+    extra = a * h * (w - z) + (zn - z) * dg
+    out[i_tau] -= weight * extra
+    return extra
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _one(x, xdot, dt, p, lanes, force, jac):
     """Force (n,) and Jacobian (n, m + r) of one simulation, written into the outputs.
@@ -123,45 +163,26 @@ def _one(x, xdot, dt, p, lanes, force, jac):
         rate = damping / dt[i]
         out = jac[i]
         if slide:
-            # the limit's tangents: each parameter's own term, and the slip's through ds
-            head[i_k] = -limit / k
-            head[i_fk] = scale
-            if i_wear >= 0:
-                head[i_wear] = p[i_fk] * scale * (half - travel)
-            slip = 0.0
-            if i_fse >= 0:
-                length = p[i_sl]
-                head[i_fse] = decay
-                head[i_sl] = f_se * decay * s / length**2
-                slip = f_se * decay / length
+            slip = _limit_tangents(head, p, lanes, limit, k, scale, half - travel, decay, s)
             gain = side / k
             for j in range(q):
                 dzn = gain * (head[j] - slip * ds[j])
                 ds[j] += side * (dz[j] + dstep[j] - dzn)
-                dw[j] = dzn + a1 * (dw[j] - dz[j]) - (dzn - dz[j]) * g1
-                dw2[j] = dzn + a2 * (dw2[j] - dz[j]) - (dzn - dz[j]) * g2
-                out[j] = k * (dzn - rf * dw[j] - w2_frac * dw2[j]) + rate * (dzn - dz[j])
-                dz[j] = dzn
+                out[j] = _through_branches(j, dzn, dz, dw, dw2, a1, g1, a2, g2, k, rf,
+                                           w2_frac, rate)
             if i_fse >= 0:
                 s += abs(z_trial - zn)
                 decay = math.exp(-s / p[i_sl])
         else:
             for j in range(q):
-                dzn = dz[j] + dstep[j]
-                dw[j] = dzn + a1 * (dw[j] - dz[j]) - (dzn - dz[j]) * g1
-                dw2[j] = dzn + a2 * (dw2[j] - dz[j]) - (dzn - dz[j]) * g2
-                out[j] = k * (dzn - rf * dw[j] - w2_frac * dw2[j]) + rate * (dzn - dz[j])
-                dz[j] = dzn
+                out[j] = _through_branches(j, dz[j] + dstep[j], dz, dw, dw2, a1, g1, a2, g2,
+                                           k, rf, w2_frac, rate)
         if i_rf >= 0:
-            extra = a1 * h1 * (w - z) + (zn - z) * dg1
-            dw[i_tau] += extra
-            out[i_tau] -= k * rf * extra
+            dw[i_tau] += _in_tau(out, i_tau, a1, h1, dg1, w, z, zn, k * rf)
             out[i_rf] -= k * w_new
             w = w_new
         if i_rf2 >= 0:
-            extra = a2 * h2 * (w2 - z) + (zn - z) * dg2
-            dw2[i_tau2] += extra
-            out[i_tau2] -= k * w2_frac * extra
+            dw2[i_tau2] += _in_tau(out, i_tau2, a2, h2, dg2, w2, z, zn, k * w2_frac)
             out[i_rf2] -= k * (1.0 - rf) * w2_new
             out[i_rf] += k * rf2 * w2_new
             w2 = w2_new

@@ -5,7 +5,7 @@ body as a few dozen small kernels per time step, so ``jax.jacfwd`` of it is boun
 launches, not by arithmetic. The loops (:mod:`frictionfit.models._contact_loop`, the
 contact; :mod:`frictionfit.models._channel_loop`, the drive, sensor and one channel) carry
 the state and its tangents in registers: the same force and Jacobian (to ~1e-14 relative,
-tested against ``jax.jacfwd``) 3-10x faster. They cover what the whole-measurement fits
+tested against ``jax.jacfwd``), without the launches. They cover what the whole-measurement fits
 differentiate: one channel of :class:`~frictionfit.models.MeasurementModel`, its Jacobian
 in every physical parameter. The loops release the GIL; a batch's rows are shared by one
 host thread per core (for the XLA target, which cannot start Python threads, by numba's:

@@ -260,9 +260,8 @@ SENSOR = ("offset", "drift", "leak")
 @lru_cache(maxsize=8)
 def _peak_within_stroke(stroke_mm: float) -> Param:
     """``slip_length`` at most one stroke (mm): a static peak weakens within the stroke that
-    breaks it loose. A longer "weakening" is a level drooping over each slide, which took
-    the kinetic level's place (on the lab stand-in 10 mm allowed ``f_kin`` ~ 0.03 N under a
-    1.5-N "excess"; docs/decisions.md)."""
+    breaks it loose. A longer "weakening" is a level drooping over each slide, which would
+    take the kinetic level's place."""
     return replace(PARAMS["slip_length"], upper=stroke_mm)
 
 

@@ -42,9 +42,8 @@ def _horner(x2, coefs):
 def _sin_half_period(x):
     """``sin(x)`` for ``|x| <= pi/2``, exact to rounding, as a polynomial.
 
-    XLA's general ``cos`` (range reduction included) took ~80 % of the drive and
-    half of a batched log-posterior evaluation on the CPU; this is ~5x cheaper.
-    Its derivative is the matching ``cos`` polynomial (differentiating the
+    It replaces XLA's general trigonometry, whose range reduction dominates the drive's
+    cost on the CPU. Its derivative is the matching ``cos`` polynomial (differentiating the
     Horner steps instead would cost two operations per step and tangent).
     """
     return x * _horner(x * x, _SIN_TAYLOR)
@@ -88,6 +87,16 @@ def maxwell_branches(relax_frac, tau, relax_frac2=None, tau2=None) -> tuple[list
     return [relax_frac, relax_frac2 * (1.0 - relax_frac)], [tau, tau2]
 
 
+def _kinetic_level(f_kin, wear, half_travel, travel, dx):
+    """One step of :func:`contact_force`: the kinetic level (N) after a drive step ``dx``
+    (mm) and the drive's travel since the start (mm, taken as data): ``f_kin``, worn as
+    ``f_kin exp(wear (half_travel - travel))`` unless ``wear`` is None."""
+    if wear is None:
+        return f_kin, travel
+    travel = travel + jax.lax.stop_gradient(jnp.abs(dx))
+    return f_kin * jnp.exp(wear * (half_travel - travel)), travel
+
+
 def contact_force(
     x,
     dt,
@@ -120,22 +129,22 @@ def contact_force(
     ``(force, state)``, so a drive simulated piece by piece, parameters changing between
     pieces, is one continuous history; ``state`` is ``(z, slip, (w per Maxwell branch),
     last x, last direction, travel)``, displacements in mm); every update is exact for any
-    interval and stable for any stiffness. ``unroll``: scan unrolling (2 measured fastest
-    on a 2-core CPU for batched Jacobians). The whole-measurement fits take this
+    interval and stable for any stiffness. ``unroll``: scan unrolling (the default suits
+    batched Jacobians on a small CPU). The whole-measurement fits take this
     recurrence's forward-mode Jacobian from a compiled twin
     (:mod:`frictionfit.models._forward`, tested against ``jax.jacfwd`` of this scan): a
     change to the law here must be made there too.
     """
     weakening = f_static_excess is not None
-    wearing = wear is not None
     fracs, taus = maxwell_branches(relax_frac, tau, relax_frac2, tau2)
     per_step = jnp.ndim(dt) > 0  # a non-uniform grid: one interval per sample
     coefs = tuple(maxwell_coefficients(dt, tau_j) for tau_j in taus)
     inv_slip = 1.0 / slip_length
     inv_k = 1.0 / k
-    if wearing:  # the travel is taken as data, never differentiated: its derivative in the
-        # drive changes the level by wear * dx only, and it made the Jacobian 1.3x dearer
-        half_travel = 0.5 * jnp.sum(jnp.abs(jnp.diff(jax.lax.stop_gradient(x))))
+    # the travel is taken as data, never differentiated: its derivative in the drive changes
+    # the level by wear * dx only, and it made the Jacobian 1.3x dearer
+    half_travel = (None if wear is None
+                   else 0.5 * jnp.sum(jnp.abs(jnp.diff(jax.lax.stop_gradient(x)))))
 
     def step(carry, xs):
         x_new, inv_dt, step_coefs = xs if per_step else (xs, 1.0 / dt, coefs)
@@ -144,11 +153,7 @@ def contact_force(
         dx = x_new - x_old
         moving = dx != 0.0
         new_dir = jnp.where(moving, jnp.sign(dx), direction)
-        if wearing:
-            travel = travel + jax.lax.stop_gradient(jnp.abs(dx))
-            limit = f_kin * jnp.exp(wear * (half_travel - travel))
-        else:
-            limit = f_kin
+        limit, travel = _kinetic_level(f_kin, wear, half_travel, travel, dx)
         if weakening:
             s = jnp.where(moving & (new_dir != direction), 0.0, s)  # reversal: stuck again
             limit = limit + f_static_excess * jnp.exp(-s * inv_slip)
