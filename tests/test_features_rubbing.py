@@ -157,3 +157,20 @@ def test_a_missing_channel_is_named():
         from frictionfit.features._rubbing import motions
 
         motions(rec, CHANNELS)
+
+
+def test_the_quantities_read_off_the_force_mean_the_same_at_half_the_rate():
+    """The moving averages span seconds, not samples: the same recording at 500 Hz gives
+    the same stick-slip ripple and onset rate as at 1 kHz (with 9- and 25-sample windows
+    the ripple's smooth part spanned twice the time at 500 Hz and the ripple doubled)."""
+    from frictionfit.simulation.measurements import simulate_measurements
+
+    recs = simulate_measurements([(1, "paper-2", 1), (1, "carpet-1", 1)], seed=4)
+    halved = [Recording.from_arrays(r.samples[::2], 500.0, r.channel_names, events=r.events,
+                                    name=f"{r.name}_500", metadata=r.metadata) for r in recs]
+    f = PhysicalFeatures(cache=False)
+    full, half = f.fit_transform(recs), f.transform(halved)
+    names = list(f.get_feature_names_out())
+    for quantity, tol in (("slip_ripple", 0.1), ("onset_rate", 0.1), ("rise", 0.02)):
+        cols = [j for j, n in enumerate(names) if f"_{quantity} [" in n and "_x:" in n]
+        assert np.median(np.abs(half[:, cols] / full[:, cols] - 1.0)) < tol, quantity

@@ -23,15 +23,15 @@ over the fitted tangential force, signed) and the lateral stick-slip ``slip_nois
 floored as the rubbing channels'); never the lateral sensor's offset, drift or leak.
 
 **Read off the force** (``measured=True``), per movement phase (``out``, ``back``), from the
-signal after a moving average of 9 samples, relative to its value ``x0`` at the
-command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
+signal after a centred moving average over 9 ms (:data:`FILTER_S`), relative to its
+value ``x0`` at the command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
 ``static`` (N, the deviation at the end of the relaxation), ``relaxed_frac``
 (1, ``1 - static / rise``: the share of the peak that relaxes; gain-free),
 ``t_relax`` (s, from the peak until the deviation has covered 63% of the way to
 its final level: a model-free relaxation time), ``onset_rate`` (N/s, the largest
 slope between the command and the peak: loading stiffness times drive speed) and
 ``t_peak`` (s); ``slip_ripple`` (1, the standard deviation of the signal minus its
-25-sample moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
+25-ms moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
 oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
 50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free. The
 relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are kept only with
@@ -109,6 +109,15 @@ _RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)(_stderr)?\b"
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is read.
 RIPPLE_S = 0.25
+#: Spans (s) of the moving averages: the signal's filter, and the ripple's smooth part.
+#: Each is taken over the odd number of samples nearest it at the recording's rate, so
+#: a quantity means the same at every sample rate.
+FILTER_S, RIPPLE_SMOOTH_S = 0.009, 0.025
+
+
+def samples_over(span_s: float, rate_hz: float) -> int:
+    """The odd number of samples nearest ``span_s`` (s) at ``rate_hz`` (at least 1)."""
+    return 2 * int(0.5 * span_s * rate_hz) + 1
 
 
 def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
@@ -134,7 +143,7 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
     if rise == 0:
         return out
     ripple = idx[idx < i_cmd + int(round(RIPPLE_S * rate_hz))]
-    smooth = moving_average(dev[ripple], 25)
+    smooth = moving_average(dev[ripple], samples_over(RIPPLE_SMOOTH_S, rate_hz))
     curve = [dev[i] / rise if i < i_end and np.isfinite(dev[i]) else np.nan
              for i in (i_peak + np.round(np.asarray(RELAX_DELAYS) * rate_hz).astype(int))]
     out[:] = [
@@ -217,7 +226,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 30  # 30: the creep's level (creep)
+    _version = 31  # 31: the moving averages' spans in seconds, not samples
     _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
     #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).
@@ -353,7 +362,8 @@ class PhysicalFeatures(RecordingFeatures):
         found: list[list[Motion] | None] = []
         for rec in recordings:
             try:
-                found.append(motions(rec, self.channels, filter_n=9))
+                found.append(motions(rec, self.channels,
+                                     filter_n=samples_over(FILTER_S, rec.sample_rate_hz)))
             except RecordingError as exc:
                 warnings.warn(f"physical features: {exc}", FeatureWarning, stacklevel=2)
                 found.append(None)
