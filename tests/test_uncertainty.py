@@ -10,6 +10,7 @@ import pytest
 
 from frictionfit.errors import FitError
 from frictionfit.fit import fit_trials
+from frictionfit.fit.result import take_trials
 from frictionfit.models import PARAMS, get_model
 from frictionfit.simulation.trials import simulate_trials
 from frictionfit.uncertainty import posterior_summary, sample_posterior, to_arviz
@@ -67,6 +68,23 @@ def test_the_verdict_counts_the_rows_and_the_converged_chains(both):
                                 f"{np.nanmax(list(mc.rhat[0].values())):.2f}: their intervals "
                                 "are not to be trusted, see uq_reason; 1 failed: emcee "
                                 "failed: disk full), 1 row skipped (see uq_reason)")
+
+
+def test_emcee_converges_on_an_easy_trial_and_its_sd_agrees_with_laplace(fitted):
+    """Default settings on a well identified seeded trial: converged by the stopping rule
+    (>= 50 tau, R-hat <= 1.01), ``n_params + 1`` walkers, and the sd of the near-Gaussian
+    parameters within a factor 1.5 of Laplace's."""
+    ts, y, fit = fitted
+    args = (take_trials(fit, [0]), y[:1], ts.t, (ts.t_out, ts.t_back))
+    lap = sample_posterior(*args, method="laplace")
+    mc = sample_posterior(*args, method="emcee", seed=1)
+    chain = mc.chains[0]
+    assert mc.converged[0], mc.reason[0]
+    assert chain.samples.shape[1] == get_model(MODEL).n_params + 1
+    assert chain.n_steps >= 50 * chain.tau.max()
+    assert max(mc.rhat[0].values()) <= 1.01
+    for name in ("offset", "f_kin"):
+        assert lap.sd[0][name] / 1.5 <= mc.sd[0][name] <= 1.5 * lap.sd[0][name], name
 
 
 @pytest.mark.slow

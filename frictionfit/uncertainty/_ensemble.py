@@ -35,7 +35,9 @@ Moves: an *adaptive independence sampler*, in the sampling coordinates of
 
 Why an independence sampler and not DE or stretch moves: the posterior is a long, thin,
 curved ridge (``k / ramp**2`` fixed by a trial's onset) along which those moves crawl,
-and walkers of one trial share only the proposal, never a move.
+and walkers of one trial share only the proposal, never a move. Since each walker is a
+chain of its own and R-hat asks each to be long, a trial needs few walkers
+(``n_params + 1`` by default in :func:`~frictionfit.uncertainty.sample_posterior`).
 """
 
 from __future__ import annotations

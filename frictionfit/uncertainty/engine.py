@@ -234,7 +234,9 @@ def sample_posterior(
     noise : {"ar1", "white"}
         Likelihood: AR(1) residuals (rho estimated per trial) or white.
     nwalkers : int, optional
-        Walkers per trial; default ``2 * n_params + 2``.
+        Walkers per trial; default ``n_params + 1``. Each walker is a chain of its own
+        (no move mixes them), so more walkers cost more per step without shortening the
+        chain that R-hat over the walkers asks of each.
     max_steps, check_every, min_tau_multiple
         emcee step cap (of the kept chain), steps between tau checks, required chain
         length in tau.
@@ -400,7 +402,7 @@ def _sample_emcee(model: ContactModel, rows: np.ndarray, sub: tuple, mode, cov,
                   how: SamplerSettings, out: dict) -> None:
     """emcee for the trials ``rows`` of the batch (``sub``: their :func:`_trial_data`),
     started from their Laplace ``mode`` and ``cov``."""
-    nwalkers = how.nwalkers or 2 * model.n_params + 2
+    nwalkers = how.nwalkers or model.n_params + 1
     fallback = np.diag(np.full(model.n_params, 1e-2))
     covs = np.stack([c if np.all(np.isfinite(c)) else fallback for c in cov])
     # emcee runs in sampling coordinates (log values: see _logpost); the Laplace
