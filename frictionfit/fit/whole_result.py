@@ -58,6 +58,11 @@ class MeasurementFit(FitResult):
         Per row, the AR(1) noise of the weighted block residuals at the optimum (marginal
         sd, N, and lag-1 coefficient; :mod:`frictionfit.fit._noise`): the one likelihood's
         noise, behind the BIC, the covariance and the posteriors.
+    held_cov : list of ndarray or None
+        Per row, the share of ``cov`` that values held at the session's (the motor's profile,
+        the finger's creep) add for their own uncertainty (the free parameters' unconstrained
+        coordinates; zeros where nothing is held): ``cov`` less it is the covariance at the
+        held values.
     item_of, motion_of : ndarray or None
         For :meth:`per_motion`'s result: per row, the row of the whole fit it refits and
         the motion's number in it.
@@ -68,6 +73,7 @@ class MeasurementFit(FitResult):
     fitted_models: list | None = field(default=None, repr=False)
     noise_sd: np.ndarray | None = field(default=None, repr=False)
     noise_rho: np.ndarray | None = field(default=None, repr=False)
+    held_cov: list | None = field(default=None, repr=False)
     item_of: np.ndarray | None = field(default=None, repr=False)
     motion_of: np.ndarray | None = field(default=None, repr=False)
 
