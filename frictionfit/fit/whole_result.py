@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.fit.result import FitResult, fit_report
@@ -126,6 +127,30 @@ class MeasurementFit(FitResult):
         is not fitted)."""
         d = self.items[i]
         return np.where(d.mask, d.weight * (self.predict(i) - d.y), 0.0)
+
+    def noise_by_regime(self) -> pd.DataFrame:
+        """The residuals' noise by regime, a check of the one AR(1) the fit assumes
+        (:attr:`noise_sd`, :attr:`noise_rho`): per row and regime (``"moving"``: the fitted
+        drive's velocity is non-zero; ``"holding"``: it is zero), the fitted blocks, and
+        the AR(1) estimate of their weighted residuals (:meth:`residuals`; a block whose
+        predecessor is of the other regime starts a new run): ``sd`` (N) and ``rho``."""
+        import jax.numpy as jnp
+
+        from frictionfit.fit._noise import ar1_estimate
+
+        rows = []
+        for i in range(self.n_trials):
+            d = self.items[i]
+            _, speed = self.member(i).finger(jnp.asarray(self.u[i]), jnp.asarray(d.t),
+                                             jnp.asarray(d.commands), jnp.asarray(d.signs),
+                                             jnp.asarray(d.stretch))
+            moving, resid = np.asarray(speed) != 0.0, self.residuals(i)
+            for regime, where in (("moving", moving), ("holding", ~moving)):
+                mask = d.mask & where
+                sd, rho = ar1_estimate(resid[None], mask[None])
+                rows.append({"id": self.ids[i], "regime": regime, "blocks": int(mask.sum()),
+                             "sd": float(sd[0]), "rho": float(rho[0])})
+        return pd.DataFrame(rows)
 
     def plot(self, i: int, path: str | Path, title: str | None = None) -> Path:
         """A PNG of row ``i``'s fitted blocks against its fit, with residuals, at ``path``."""
