@@ -286,3 +286,9 @@ def test_emcee_of_a_session_held_fit_converges_and_carries_the_held_spread(sessi
     for name in IDENTIFIED:
         ratio = mc.sd[0][name] / laplace.sd[0][name]
         assert 1 / 1.5 < ratio < 1.5, (name, ratio)
+    # the held values' variance added to the chain's (the sensor's: identity coordinates)
+    for name in ("offset", "drift", "leak"):
+        j, jj = res.member(0).param_names.index(name), names.index(name)
+        chain_var = np.var(mc.chains[0].samples[..., j])
+        np.testing.assert_allclose(mc.sd[0][name] ** 2, chain_var + res.held_cov[0][jj, jj],
+                                   rtol=0.03)
