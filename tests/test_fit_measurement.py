@@ -29,6 +29,7 @@ from frictionfit.fit.session import read_session_rigs, write_session_rigs
 from frictionfit.models import PARAMS, MeasurementModel
 from frictionfit.models.measurement import to_unconstrained, trapezoid
 from frictionfit.recording import read_recording, write_recording
+from frictionfit.simulation.materials import CLASSES
 from frictionfit.simulation.measurements import (
     measurement_truth,
     motor_profile,
@@ -752,3 +753,12 @@ def test_a_declared_stroke_puts_the_travel_in_mm_and_none_says_per_stroke(simula
     assert post.quantiles[0]["k"][2] == pytest.approx(
         bare.posterior(method="laplace").quantiles[0]["k"][2] / 13.0, rel=1e-6)
     assert "k_median [N/mm]" in post.to_frame()
+
+
+def test_noise_by_regime_splits_every_fitted_block_once():
+    recs = simulate_measurements([(1, CLASSES[0], 1)], seed=0)
+    res = fit_recordings(recs, channels=["index_x"], model="no_peak2", progress=False)
+    table = res.noise_by_regime()
+    assert list(table["regime"]) == ["moving", "holding"]
+    assert table["blocks"].sum() == res.items[0].mask.sum()
+    assert np.all(table["sd"] > 0) and np.all(np.abs(table["rho"]) < 1)

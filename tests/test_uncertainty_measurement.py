@@ -239,3 +239,56 @@ def test_emcee_agrees_with_laplace_on_the_law_with_a_static_peak():
         sd = lap.sd[0][name]
         assert abs(mc.quantiles[0][name][2] - lap.quantiles[0][name][2]) < 0.5 * sd, name
         assert sd / 1.5 < mc.sd[0][name] < 1.5 * sd, name
+
+
+def test_held_spread_adds_the_held_covariance_to_the_draws():
+    from frictionfit.uncertainty._ensemble import ChainResult
+    from frictionfit.uncertainty.measurement import _with_held_spread
+
+    samples = np.zeros((400, 50, 3))
+    chain = ChainResult(samples, np.ones(3), 400, 0, 1, 0.5, True)
+    held = np.array([[0.04, 0.01], [0.01, 0.09]])
+    spread = _with_held_spread(chain, [0, 2], held, np.random.default_rng(0))
+    flat = spread.samples.reshape(-1, 3)
+    np.testing.assert_allclose(np.cov(flat[:, [0, 2]].T), held, rtol=0.05, atol=1e-3)
+    assert np.all(flat[:, 1] == 0.0) and np.all(chain.samples == 0.0)  # the chain is kept
+    assert _with_held_spread(chain, [0, 2], np.zeros((2, 2)), None) is chain
+
+
+@pytest.fixture(scope="module")
+def session_held():
+    """Two simulated recordings of one session, fitted with the motor's profile and the
+    finger's creep held at the session's (their uncertainty in ``held_cov``)."""
+    recs = simulate_measurements([(1, CLASSES[0], 1), (1, CLASSES[0], 2)], seed=0)
+    res = fit_recordings(recs, channels=["index_x"], model="no_peak2", rig="session",
+                         creep="session", progress=False)
+    assert (res.status == Status.CONVERGED).all()
+    return res
+
+
+def test_a_session_held_fit_records_what_its_holds_add(session_held):
+    res = session_held
+    for i in range(res.n_trials):
+        assert not {"ramp", "accel", "tau2"} & set(res.free_names(i))
+        held = res.held_cov[i]
+        assert held.shape == res.cov[i].shape and np.any(held)
+        assert np.all(np.linalg.eigvalsh(held) > -1e-12)  # a covariance
+        assert np.all(np.linalg.eigvalsh(res.cov[i] - held) > -1e-12)  # cov at held values
+
+
+def test_emcee_of_a_session_held_fit_converges_and_carries_the_held_spread(session_held):
+    res = take_trials(session_held, [0])
+    laplace = res.posterior(method="laplace", seed=0)
+    mc = res.posterior(method="emcee", seed=0, max_steps=2000)
+    assert mc.converged[0], mc.reason
+    names = res.free_names(0)
+    assert "tau2" not in names and np.isnan(mc.rhat[0]["tau2"])  # held: not sampled
+    for name in IDENTIFIED:
+        ratio = mc.sd[0][name] / laplace.sd[0][name]
+        assert 1 / 1.5 < ratio < 1.5, (name, ratio)
+    # the held values' variance added to the chain's (the sensor's: identity coordinates)
+    for name in ("offset", "drift", "leak"):
+        j, jj = res.member(0).param_names.index(name), names.index(name)
+        chain_var = np.var(mc.chains[0].samples[..., j])
+        np.testing.assert_allclose(mc.sd[0][name] ** 2, chain_var + res.held_cov[0][jj, jj],
+                                   rtol=0.03)

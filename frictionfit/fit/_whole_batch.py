@@ -146,7 +146,9 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
         cov=list(stats["cov"]), stroke_mm=model.stroke_mm, priors=_prior_dict(model),
         derived=(derived_quantities(model, free, u, stats["cov"], resid, items,
                                     data.direction) if final else None),
-        items=list(items), fitted_models=[model] * len(items), noise_sd=sigma, noise_rho=rho)
+        items=list(items), fitted_models=[model] * len(items), noise_sd=sigma, noise_rho=rho,
+        held_cov=list(np.zeros((len(items), len(free), len(free))) if held_cov is None
+                      else np.asarray(held_cov, dtype=np.float64)))
 
 
 #: Smallest drop of the log-posterior 2 sd out on either side of a parameter's Gaussian

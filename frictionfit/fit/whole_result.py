@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.fit.result import FitResult, fit_report
@@ -58,6 +59,11 @@ class MeasurementFit(FitResult):
         Per row, the AR(1) noise of the weighted block residuals at the optimum (marginal
         sd, N, and lag-1 coefficient; :mod:`frictionfit.fit._noise`): the one likelihood's
         noise, behind the BIC, the covariance and the posteriors.
+    held_cov : list of ndarray or None
+        Per row, the share of ``cov`` that values held at the session's (the motor's profile,
+        the finger's creep) add for their own uncertainty (the free parameters' unconstrained
+        coordinates; zeros where nothing is held): ``cov`` less it is the covariance at the
+        held values.
     item_of, motion_of : ndarray or None
         For :meth:`per_motion`'s result: per row, the row of the whole fit it refits and
         the motion's number in it.
@@ -68,6 +74,7 @@ class MeasurementFit(FitResult):
     fitted_models: list | None = field(default=None, repr=False)
     noise_sd: np.ndarray | None = field(default=None, repr=False)
     noise_rho: np.ndarray | None = field(default=None, repr=False)
+    held_cov: list | None = field(default=None, repr=False)
     item_of: np.ndarray | None = field(default=None, repr=False)
     motion_of: np.ndarray | None = field(default=None, repr=False)
 
@@ -120,6 +127,30 @@ class MeasurementFit(FitResult):
         is not fitted)."""
         d = self.items[i]
         return np.where(d.mask, d.weight * (self.predict(i) - d.y), 0.0)
+
+    def noise_by_regime(self) -> pd.DataFrame:
+        """The residuals' noise by regime, a check of the one AR(1) the fit assumes
+        (:attr:`noise_sd`, :attr:`noise_rho`): per row and regime (``"moving"``: the fitted
+        drive's velocity is non-zero; ``"holding"``: it is zero), the fitted blocks, and
+        the AR(1) estimate of their weighted residuals (:meth:`residuals`; a block whose
+        predecessor is of the other regime starts a new run): ``sd`` (N) and ``rho``."""
+        import jax.numpy as jnp
+
+        from frictionfit.fit._noise import ar1_estimate
+
+        rows = []
+        for i in range(self.n_trials):
+            d = self.items[i]
+            _, speed = self.member(i).finger(jnp.asarray(self.u[i]), jnp.asarray(d.t),
+                                             jnp.asarray(d.commands), jnp.asarray(d.signs),
+                                             jnp.asarray(d.stretch))
+            moving, resid = np.asarray(speed) != 0.0, self.residuals(i)
+            for regime, where in (("moving", moving), ("holding", ~moving)):
+                mask = d.mask & where
+                sd, rho = ar1_estimate(resid[None], mask[None])
+                rows.append({"id": self.ids[i], "regime": regime, "blocks": int(mask.sum()),
+                             "sd": float(sd[0]), "rho": float(rho[0])})
+        return pd.DataFrame(rows)
 
     def plot(self, i: int, path: str | Path, title: str | None = None) -> Path:
         """A PNG of row ``i``'s fitted blocks against its fit, with residuals, at ``path``."""

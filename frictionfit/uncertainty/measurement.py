@@ -26,7 +26,13 @@ exactly its Gaussian approximation.
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
 
-Fixed and tied parameters stay at the fit's values. Rows whose fit failed (non-finite,
+Fixed and tied parameters stay at the fit's values: neither method samples them. Values a
+fit holds at its session's (``rig="session"``: the motor's profile; ``creep="session"``:
+the finger's creep) carry their own uncertainty in: Laplace through ``cov``, which includes
+it; emcee samples the free parameters at the held values and shifts each draw by an
+independent draw of ``N(0, held_cov)`` (``MeasurementFit.held_cov``: what the holds add to
+``cov``, to first order) before its quantiles and sd are taken; its chain and chain
+statistics stay those of the sampled density. Rows whose fit failed (non-finite,
 too little data, no finite covariance) get method ``"none"``, the reason, NaN numbers and
 ``converged=False``.
 """
@@ -36,6 +42,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from functools import lru_cache
 
 import jax
@@ -150,7 +157,8 @@ def whole_fit_posterior(
     -------
     Posterior
         One entry per row (physical units); ``chains[i]`` holds emcee's chain in the fit's
-        unconstrained coordinates of every parameter (fixed ones constant).
+        unconstrained coordinates of every parameter (fixed and held ones constant; the
+        held values' spread is in the quantiles and sd, not in the chain).
 
     Examples
     --------
@@ -249,7 +257,16 @@ def _sample_group(fit: MeasurementFit, model: MeasurementModel, free: tuple[int,
             _store_laplace(fit, model, i, draws, out)
     sel = np.flatnonzero(use_emcee)
     if sel.size:
-        _sample_emcee(model, free, data, s2, u_hat, sel, rows, out, emcee_kw)
+        held = [_held_cov(fit, i) for i in rows]
+        _sample_emcee(model, free, data, s2, u_hat, held, sel, rows, out, emcee_kw, rng)
+
+
+def _held_cov(fit: MeasurementFit, i: int) -> np.ndarray:
+    """Row ``i``'s :attr:`~frictionfit.fit.MeasurementFit.held_cov` (zeros for a fit that
+    does not record it)."""
+    p = len(fit.free_names(i))
+    held = None if fit.held_cov is None else fit.held_cov[i]
+    return np.zeros((p, p)) if held is None else np.asarray(held)
 
 
 def _store_laplace(fit: MeasurementFit, model, i: int, draws: np.ndarray, out: dict) -> None:
@@ -324,11 +341,27 @@ def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
     return mode, covs
 
 
-def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, sel, rows, out,
-                  kw: dict) -> None:
+def _with_held_spread(chain: ChainResult, free_l: list[int], held_cov: np.ndarray,
+                      rng: np.random.Generator) -> ChainResult:
+    """``chain`` with each draw of the free parameters shifted by an independent draw of
+    ``N(0, held_cov)`` (unconstrained coordinates): the spread that values held at the
+    session's add, to first order, to a posterior sampled at those values. The chain
+    statistics stay those of the chain itself."""
+    if not np.any(held_cov):
+        return chain
+    shape = (*chain.samples.shape[:2], len(free_l))
+    samples = chain.samples.copy()
+    samples[..., free_l] += _laplace_draws(np.zeros(len(free_l)), held_cov,
+                                           int(np.prod(shape[:2])), rng).reshape(shape)
+    return replace(chain, samples=samples)
+
+
+def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, held_cov, sel,
+                  rows, out, kw: dict, rng: np.random.Generator) -> None:
     """emcee for the group's rows ``sel`` in the fit's unconstrained coordinates (the density
     flat on the bounds of the sampling coordinates, times the logistic Jacobian), started
-    from :func:`_proposal_start` (the pilot stages refit the proposal)."""
+    from :func:`_proposal_start` (the pilot stages refit the proposal); each row's summary
+    widened by its ``held_cov`` (:func:`_with_held_spread`)."""
     free_l = list(free)
     sub = data.take(sel)
     centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, s2[sel])
@@ -348,4 +381,5 @@ def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, sel, r
             full_stat = np.full(model.n_params, np.nan)
             full_stat[free_l] = getattr(chain, key)
             setattr(chain, key, full_stat)
-        store_chain(model, i, chain, out)
+        store_chain(model, i, _with_held_spread(chain, free_l, held_cov[k], rng), out)
+        out["chains"][i] = chain
