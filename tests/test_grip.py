@@ -15,6 +15,7 @@ from frictionfit.features.grip import (
     law_curve,
     law_support,
     load_signal,
+    stroke_shift,
     without_load,
 )
 from frictionfit.recording import Recording
@@ -192,3 +193,29 @@ def test_breakaway_shift_grows_with_the_load_and_ignores_offsets():
                                  metadata=rec.metadata, name="flat")
     with pytest.raises(RecordingError, match="flat: breakaway shift 0 counts is not positive"):
         breakaway_shift(flat)
+
+
+def test_stroke_shift_grows_with_the_load_and_ignores_offsets():
+    """Load shifted between taxels (gains summing to zero) steadily over the stroke, up to
+    0.2 of the grip load (friction-like), on top of a level and a common swing."""
+    rng = np.random.default_rng(7)
+    gains = rng.uniform(0.5, 1.5, 16) * np.tile([1.0, -1.0], 8)
+    gains -= gains.mean()
+    shifts = []
+    for load in (120.0, 240.0):
+        rec = slide(load, np.random.default_rng(8))
+        x = np.column_stack([rec.channel(c) for c in TAXELS])
+        shear = 0.2 * load * rec.t / rec.t[-1]
+        rec = Recording.from_arrays(x + shear[:, None] * gains, RATE_HZ, list(TAXELS),
+                                    units="counts", metadata=rec.metadata, name=rec.name)
+        shifts.append(stroke_shift(rec))
+        moved = Recording.from_arrays(rec.samples + rng.uniform(-80, 300, 16), RATE_HZ,
+                                      list(TAXELS), units="counts", metadata=rec.metadata)
+        assert stroke_shift(moved) == pytest.approx(shifts[-1], rel=1e-9)
+    assert np.log(shifts[1] / shifts[0]) / np.log(2.0) == pytest.approx(1.0, abs=0.1)
+    # the ramps' means lie ~92 % of the stroke apart (each ramp ~7.9 % of the slide)
+    assert shifts[0] == pytest.approx(0.92 * 0.2 * 120 * np.linalg.norm(gains), rel=0.15)
+    flat = Recording.from_arrays(np.ones((200, 16)), RATE_HZ, list(TAXELS), units="counts",
+                                 metadata=rec.metadata, name="flat")
+    with pytest.raises(RecordingError, match="flat: stroke shift 0 counts is not positive"):
+        stroke_shift(flat)

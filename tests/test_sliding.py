@@ -183,6 +183,6 @@ def test_grip_scaling_recovers_a_friction_like_exponent_and_needs_classes():
     assert np.all(SlidingPhysicalFeatures(grip="scaled", cache=False).fit(recs)
                   .grip_law_.exponents_ == 0)
     assert SlidingPhysicalFeatures(grip="none", cache=False).fit(recs, labels).grip_law_ is None
-    with pytest.raises(ValueError, match=r"grip='loose'; choose from \['breakaway', 'scaled', "
-                                         r"'none'\]"):
+    with pytest.raises(ValueError, match=r"grip='loose'; choose from \['stroke', "
+                                         r"'breakaway', 'scaled', 'none'\]"):
         SlidingPhysicalFeatures(grip="loose", cache=False).fit(recs, labels)

@@ -19,7 +19,7 @@ from frictionfit.cli._load import (
 DATASET_HELP = "KIND:PATH, e.g. recordings:DIR, fabricslide:DIR or gesture:DIR."
 FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted (the contact "
                  "law fitted to each recording), sliding (a FabricSlide slide's texture beyond "
-                 "the grip, read through power laws of its breakaway shift), handcrafted, fftbins, "
+                 "the grip, read through power laws of its stroke shift), handcrafted, fftbins, "
                  "spectral, raw, gesture, touch, shortcut; a comma list concatenates them. "
                  "Default by dataset kind: recordings "
                  "physical,fitted (the most accurate and best calibrated; a fit per "

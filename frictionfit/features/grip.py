@@ -10,13 +10,16 @@ to it, leaving what the taxels do beyond following the load (the texture). The
 variation and the residual are unchanged by a constant added to any taxel; the
 load level is not (it is the level itself).
 
-**An offset-free measure of the load.** When the slide starts, the shear the fabric
-exerts shifts load between the taxels: each taxel's mean over the steady part minus
-its mean over the first :data:`BREAKAWAY_FRACTION` of the slide (while the finger still
-sticks and starts to move), with the change common to all taxels removed, is the
-breakaway shift (:func:`breakaway_shift`, counts). A friction-like quantity, it grows
-with the normal load, and as a difference of each taxel with itself it is unchanged by
-a constant added to any taxel.
+**Offset-free measures of the load.** Sliding shifts load between the taxels (the
+shear the fabric exerts, the pad's creep under the grip), the more the larger the
+normal load. The stroke shift (:func:`stroke_shift`, counts) is each taxel's mean over
+the end ramp (the finger slowing to rest) minus its mean over the start ramp (the
+finger starting from rest), with the change common to all taxels removed: the load
+pattern the stroke leaves behind. The breakaway shift (:func:`breakaway_shift`,
+counts) is each taxel's mean over the steady part minus its mean over the first
+:data:`BREAKAWAY_FRACTION` of the slide (while the finger still sticks and starts to
+move), likewise. As differences of each taxel with itself, both are unchanged by a
+constant added to any taxel.
 
 **Scaling laws.** A quantity ``q`` observed at loads ``L`` follows a power law
 ``q = c L^b`` (``log q`` linear in ``log L``). :class:`GripLaw` fits one exponent per
@@ -40,7 +43,7 @@ from frictionfit.recording import Recording
 
 __all__ = ["BREAKAWAY_FRACTION", "LAWS", "RAMP_FRACTION", "GripLaw", "breakaway_shift",
            "grip_load", "law_curve", "law_support", "load_signal", "steady_part",
-           "without_load"]
+           "stroke_shift", "without_load"]
 
 #: Fraction of a slide taken by each velocity ramp when the metadata lacks ``ramp_s``.
 RAMP_FRACTION = 0.079
@@ -58,10 +61,14 @@ LAWS: dict[str, float | str | None] = {
 }
 
 
+def _ramp_s(rec: Recording) -> float:
+    return float(rec.metadata.get("ramp_s", RAMP_FRACTION * rec.duration_s))
+
+
 def steady_part(rec: Recording) -> np.ndarray:
     """Where the slide runs at constant speed: outside both velocity ramps (``ramp_s`` s;
     :data:`RAMP_FRACTION` of the slide each where the metadata lacks it)."""
-    ramp_s = float(rec.metadata.get("ramp_s", RAMP_FRACTION * rec.duration_s))
+    ramp_s = _ramp_s(rec)
     return (rec.t >= ramp_s) & (rec.t <= rec.t[-1] - ramp_s)
 
 
@@ -95,6 +102,21 @@ def breakaway_shift(rec: Recording) -> float:
     if not np.isfinite(shift) or shift <= 0:
         raise RecordingError(f"breakaway shift {shift:.3g} counts is not positive",
                              path=rec.name)
+    return shift
+
+
+def stroke_shift(rec: Recording) -> float:
+    """The load shifted between the taxels over the stroke (counts): the Euclidean norm over
+    the taxels of (mean over the end ramp minus mean over the start ramp, each ``ramp_s``
+    s as in :func:`steady_part`, at least 3 samples), the mean over taxels removed."""
+    x = np.column_stack([rec.channel(c) for c in TAXELS])
+    n = max(3, int(np.count_nonzero(rec.t < _ramp_s(rec))))
+    if 2 * n > x.shape[0]:
+        raise RecordingError("too few samples to measure the stroke shift", path=rec.name)
+    d = x[-n:].mean(axis=0) - x[:n].mean(axis=0)
+    shift = float(np.linalg.norm(d - d.mean()))
+    if not np.isfinite(shift) or shift <= 0:
+        raise RecordingError(f"stroke shift {shift:.3g} counts is not positive", path=rec.name)
     return shift
 
 

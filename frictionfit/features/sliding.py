@@ -7,15 +7,17 @@ gripper (the mean over taxels), which every taxel follows with its own gain. The
 texture features are computed from the taxels without that response, and each is
 brought to a reference load by a power law whose exponent is fitted within the fabrics
 across the training grips (:class:`~frictionfit.features.grip.GripLaw`), so a new
-grip is read through the law. The default ``grip="breakaway"`` measures the load by
-the breakaway shift (:func:`~frictionfit.features.grip.breakaway_shift`: the load the
-starting slide shifts between the taxels, friction-like), which a constant offset on a
-taxel does not move; ``grip="scaled"`` by the grip load (the taxels' level), which it
-does; ``grip="none"`` leaves the features as observed.
+grip is read through the law. The default ``grip="stroke"`` measures the load by
+the stroke shift (:func:`~frictionfit.features.grip.stroke_shift`: the load the stroke
+shifts between the taxels, from the start ramp to the end ramp), ``grip="breakaway"``
+by the breakaway shift (:func:`~frictionfit.features.grip.breakaway_shift`: the same
+from the start to the steady part); a constant offset on a taxel moves neither.
+``grip="scaled"`` measures it by the grip load (the taxels' level), which the offset
+does move; ``grip="none"`` leaves the features as observed.
 
 **Texture, not mounting.** Each taxel's own mean (or linear trend, in the steady part)
 is removed and amplitudes are relative to a taxel's own dynamic range, so a constant
-offset added to any taxel changes no texture value and no breakaway shift (with
+offset added to any taxel changes no texture value and no stroke or breakaway shift (with
 ``grip="scaled"``, the grip load moves and the scaled values with it), and the
 proximity words are never read.
 
@@ -64,6 +66,7 @@ from frictionfit.features.grip import (
     grip_load,
     load_signal,
     steady_part,
+    stroke_shift,
     without_load,
 )
 from frictionfit.models.family import PARAMS
@@ -77,7 +80,8 @@ GRIP_LOOP_HZ = (2.0, 2.6)
 BANDS_HZ = ((0.25, 0.42), (0.42, 0.72), (0.72, 1.23), (1.23, 2.0),
             (2.6, 3.55), (3.55, 6.04), (6.04, 10.3), (10.3, 17.5))
 #: Measures of the load (counts) a feature's grip law is fitted against, by ``grip`` name.
-GRIP_MEASURES = {"breakaway": breakaway_shift, "scaled": grip_load, "none": None}
+GRIP_MEASURES = {"stroke": stroke_shift, "breakaway": breakaway_shift, "scaled": grip_load,
+                 "none": None}
 CONTACT_MODEL = "relaxation"
 #: Points of the whole-slide observable the contact model is fitted to.
 N_FIT = 128
@@ -277,12 +281,12 @@ def _fit_row(res, row: int, sign: float, total_r2: float, span: float) -> np.nda
 class SlidingPhysicalFeatures(RecordingFeatures):
     """Slide-model fit and stick-slip statistics of FabricSlide slides, beyond the grip.
 
-    Blind to the proximity words; with ``grip="breakaway"`` (the default) or ``"none"``
-    every value is unchanged by a constant offset on any taxel (see the module docstring
-    for the definitions and units). Stiffness, ratio, slip length and relaxation time
-    are given as natural logs. Unless ``grip="none"``, each feature is brought to the
-    training data's reference load by a power law of a measure of the load, its exponent
-    fitted within the classes across the training grips
+    Blind to the proximity words; with ``grip="stroke"`` (the default), ``"breakaway"``
+    or ``"none"`` every value is unchanged by a constant offset on any taxel (see the
+    module docstring for the definitions and units). Stiffness, ratio, slip length and
+    relaxation time are given as natural logs. Unless ``grip="none"``, each feature is
+    brought to the training data's reference load by a power law of a measure of the
+    load, its exponent fitted within the classes across the training grips
     (:class:`~frictionfit.features.grip.GripLaw`); ``fit`` then needs the classes ``y``
     (without them the exponents are zero).
 
@@ -293,10 +297,10 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     contact : bool, default False
         Also give the slide model's fitted parameters and fit statistics (``_FIT_NAMES``)
         as features; they are always computed (and cached), so switching costs no fit.
-    grip : {"breakaway", "scaled", "none"}, default "breakaway"
-        The measure of the load the features' laws are fitted against: the breakaway
-        shift (counts; offset-invariant), the grip load (counts; the taxels' level, not
-        offset-invariant); or none (the features as observed).
+    grip : {"stroke", "breakaway", "scaled", "none"}, default "stroke"
+        The measure of the load the features' laws are fitted against: the stroke
+        shift or the breakaway shift (counts; offset-invariant), the grip load (counts;
+        the taxels' level, not offset-invariant); or none (the features as observed).
     cache : bool, default True
         Cache rows per recording content (see :mod:`frictionfit.features._base`).
 
@@ -310,7 +314,7 @@ class SlidingPhysicalFeatures(RecordingFeatures):
     _version = 4
     _view_params = ("contact", "grip")
 
-    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "breakaway",
+    def __init__(self, max_steps: int = 200, contact: bool = False, grip: str = "stroke",
                  cache: bool = True):
         self.max_steps = max_steps
         self.contact = contact
