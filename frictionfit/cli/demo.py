@@ -41,11 +41,13 @@ def _classify(recs: list, fitted: bool) -> None:
     specs = [(s, c, t) for s in (2, 3) for c in classes for t in range(1, 5)]
     train = simulate_measurements(specs, SAMPLE["seed"])
     kind = "fitted + measured" if fitted else "measured"
+    # one rig (the simulator's) for training and sample data: the relaxation quantities,
+    # which another rig's finger would change, describe the material here
     pipe = make_pipeline("physical", "svm-ovo", normalise_by=None, fitted=fitted,
-                         project=projection_for(train))
+                         relaxation=True, project=projection_for(train))
     predicted = pipe.fit(train, labels_of(train)).predict(recs)
     projected = "project" in pipe.named_steps and pipe.named_steps["project"].lda_ is not None
-    typer.echo(f"\nclassification: physical features ({kind}), "
+    typer.echo(f"\nclassification: physical features ({kind}, relaxation included: one rig), "
                f"{'LDA projection + ' if projected else ''}RBF SVM, trained on "
                f"{len(train)} simulated measurements of sessions 2-3")
     for rec, label in zip(recs, predicted, strict=True):
