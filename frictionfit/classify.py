@@ -409,7 +409,7 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
              protocol: str = "kfold", *, target: str = "label", seed: int = 0,
              n_splits: int = 5, project: str | None = "auto",
              pipeline: Pipeline | None = None, calibrate: bool = True,
-             n_draws: int = 32) -> Evaluation:
+             n_draws: int = 32, feature_params: dict | None = None) -> Evaluation:
     """Train and test ``features -> scaler -> [projection ->] classifier``; pooled scores.
 
     Parameters
@@ -432,6 +432,9 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
         (probabilities calibrated on held-out training recordings; averaged over
         ``n_draws`` feature draws where the features have them); ``probability``
         is then the calibrated probability of the predicted class.
+    feature_params : dict, optional
+        Keyword arguments of the feature sets that take them (e.g. ``relaxation=True``);
+        ignored when ``pipeline`` is given.
 
     Examples
     --------
@@ -442,7 +445,7 @@ def evaluate(recordings: Sequence[Recording], features="physical", classifier: s
     y = classes_of(recordings, target)
     template = pipeline if pipeline is not None else make_pipeline(
         features, classifier, seed=seed, project=projection_for(recordings, project),
-        probability=calibrate)
+        probability=calibrate, **(feature_params or {}))
     if calibrate:
         template = CalibratedPipeline(template, n_draws=n_draws, seed=seed)
         if protocol == "leave-one-rig-out":  # the held-out rig is one the model never saw

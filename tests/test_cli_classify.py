@@ -104,6 +104,33 @@ def test_default_features_follow_the_dataset_kind(folders, tmp_path):
     assert "fitted__index_x:fit_k [log10 N/stroke]" in columns  # the simulator declares none
 
 
+def test_relaxation_flag_keeps_the_relaxation_quantities(folders, tmp_path):
+    """--relaxation adds the fitted and measured relaxation quantities; without it, none."""
+    columns = {}
+    for flag in ("--no-relaxation", "--relaxation"):
+        out = tmp_path / f"{flag}.csv"
+        result = runner.invoke(app, ["features", "--dataset", f"recordings:{folders[1]}",
+                                     "--out", str(out), flag])
+        assert result.exit_code == 0, result.output
+        columns[flag] = list(pd.read_csv(out).columns)
+    relax = [c for c in columns["--relaxation"] if "relax" in c]
+    assert any(c.startswith("fitted__") and "relax_frac" in c for c in relax), relax
+    assert any(c.startswith("physical__") for c in relax), relax
+    assert not [c for c in columns["--no-relaxation"] if "relax" in c]
+    assert set(columns["--no-relaxation"]) < set(columns["--relaxation"])
+
+
+def test_a_model_trained_with_relaxation_keeps_and_records_it(folders, tmp_path):
+    model = tmp_path / "m.skops"
+    result = runner.invoke(app, ["train", "--dataset", f"recordings:{folders[0]}",
+                                 "--features", "fitted", "--relaxation", "--classifier",
+                                 "knn", "--no-calibrate", "--out", str(model)])
+    assert result.exit_code == 0, result.output
+    saved = load_model(model)
+    assert saved["relaxation"] is True
+    assert any("relax_frac" in n for n in saved["feature_names"]), saved["feature_names"]
+
+
 def test_gestures_default_to_their_wavelet_features(tmp_path):
     from frictionfit.simulation.gestures import simulate_gestures
 

@@ -26,6 +26,10 @@ FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted
                  "recording, about 0.15 s each on 2 cores once compiled), fabricslide "
                  "sliding, gesture gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
+RELAXATION_HELP = ("Keep the relaxation quantities (fitted relax_frac, tau and drag; measured "
+                   "relaxed fraction, relaxation time and curve) in the physical and fitted "
+                   "sets. Off by default: how the force relaxes depends on the rig's finger as "
+                   "much as on the material, so they do not carry to another rig.")
 PROJECT_HELP = ("Projection before the classifier: lda (the linear discriminants, whitened by the "
                 "within-class scatter), none, or auto: lda when the data span several sessions.")
 #: Figure formats the commands write.
@@ -65,6 +69,11 @@ def _features_for(dataset: str, features: str | None) -> str:
     return features or DEFAULT_FEATURES.get(dataset.partition(":")[0], "physical")
 
 
+def _feature_params(relaxation: bool) -> dict:
+    """Keyword arguments of the feature sets from the command's flags (none by default)."""
+    return {"relaxation": True} if relaxation else {}
+
+
 def _groups(rec) -> dict:
     return {k: rec.metadata[k] for k in GROUP_COLUMNS if k in rec.metadata}
 
@@ -73,6 +82,7 @@ def features(
     dataset: str = typer.Option(..., help=DATASET_HELP),
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     out: Path = typer.Option(Path("features.csv"), help="Output table (.csv or .parquet)."),
+    relaxation: bool = typer.Option(False, help=RELAXATION_HELP),
     strict: bool = typer.Option(False, help=STRICT_HELP),
     overwrite: bool = typer.Option(False, help=OVERWRITE_HELP),
 ) -> None:
@@ -86,7 +96,7 @@ def features(
     features = _features_for(dataset, features)
     recordings = _load(dataset, strict)
     try:
-        transformer = make_features(features)
+        transformer = make_features(features, **_feature_params(relaxation))
         with stage(f"features ({features}) of {len(recordings)} recordings"):
             x = transformer.fit_transform(recordings)
     except (ValueError, ImportError) as exc:
@@ -104,6 +114,7 @@ def train(
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
     project: str = typer.Option("auto", help=PROJECT_HELP),
+    relaxation: bool = typer.Option(False, help=RELAXATION_HELP),
     out: Path = typer.Option(Path("model.skops"), help="Where to save the model (skops)."),
     seed: int = typer.Option(0, help="Seed of the classifier (MLP, SVM)."),
     calibrate: bool = typer.Option(True, help="Calibrate the class probabilities on "
@@ -132,7 +143,7 @@ def train(
         y = classes_of(recordings)
         pipeline = make_pipeline(features, classifier, seed=seed,
                                  project=projection_for(recordings, _projection(project)),
-                                 probability=calibrate)
+                                 probability=calibrate, **_feature_params(relaxation))
         model = (RigTransfer(CalibratedPipeline(pipeline, n_draws=draws, seed=seed))
                  if calibrate else pipeline)
         with stage(f"training on {len(recordings)} recordings ({features})"):
@@ -143,6 +154,7 @@ def train(
     save_model({
         "pipeline": model,
         "features": features,
+        "relaxation": relaxation,
         "classifier": classifier,
         "project": "lda" if "project" in fitted.named_steps else "none",
         "feature_names": list(fitted["features"].get_feature_names_out()),
@@ -309,6 +321,7 @@ def evaluate(
                                  "leave-one-{session,person,repetition,pressure,rig}-out "
                                  "(rig: metadata.rig; needs recordings of two rigs)."),
     project: str = typer.Option("auto", help=PROJECT_HELP),
+    relaxation: bool = typer.Option(False, help=RELAXATION_HELP),
     target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),
     out: Path = typer.Option(None, help="Save the scores (.csv)."),
     confusion: Path = typer.Option(None, help="Save the confusion matrix (.png)."),
@@ -357,7 +370,8 @@ def evaluate(
               else [(features, classifier, p) for p in (protocols or protocol).split(",")])
     typer.echo(f"projection before the classifier: {projection or 'none'}")
     rows, ev = _score(recordings, combos, all_, target=target, seed=seed, project=projection,
-                      calibrate=calibrate, n_draws=draws)
+                      calibrate=calibrate, n_draws=draws,
+                      feature_params=_feature_params(relaxation))
     if not rows:
         _fail("no combination could be evaluated")
     table = pd.DataFrame(rows)
