@@ -145,7 +145,8 @@ def whole_fit_posterior(
     n_draws : int
         Laplace draws per row.
     nwalkers : int, optional
-        emcee walkers per row; default ``2 * n_free + 2``.
+        emcee walkers per row; default ``n_free + 1`` (each walker is a chain of its own: the
+        proposal moves it alone).
     max_steps, check_every, min_tau_multiple, pilot_steps
         emcee: step cap of the kept chain, steps between tau checks, required chain length
         in tau, steps of each adaptation stage.
@@ -190,7 +191,7 @@ def whole_fit_posterior(
     rng = np.random.default_rng(seed)
     for (model, free), rows in groups.items():
         _sample_group(fit, model, free, np.array(rows), method, n_draws, rng, out,
-                      dict(nwalkers=nwalkers or 2 * len(free) + 2, seed=seed,
+                      dict(nwalkers=nwalkers or len(free) + 1, seed=seed,
                            max_steps=max_steps, check_every=check_every,
                            min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
     units = [_in_reported_units(fit, i, out) for i in range(n)]
