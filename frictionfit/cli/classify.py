@@ -26,6 +26,9 @@ FEATURES_HELP = ("Feature set(s): physical (measured contact quantities), fitted
                  "recording, about 0.15 s each on 2 cores once compiled), fabricslide "
                  "sliding, gesture gesture.")
 CLASSIFIER_HELP = "svm-ovo (default), svm-ova, svm-poly, svm-quadratic, knn or mlp."
+PROTOCOL_HELP = ("kfold, mixed-5fold, person-dependent, holdout, "
+                 "leave-one-{session,person,repetition,pressure,rig}-out "
+                 "(rig: metadata.rig; needs recordings of two rigs).")
 RELAXATION_HELP = ("Keep the relaxation quantities (fitted relax_frac, tau and drag; measured "
                    "relaxed fraction, relaxation time and curve) in the physical and fitted "
                    "sets. Off by default: how the force relaxes depends on the rig's finger as "
@@ -317,9 +320,7 @@ def evaluate(
     dataset: str = typer.Option(..., help=DATASET_HELP),
     features: str = typer.Option(None, help=FEATURES_HELP, show_default=False),
     classifier: str = typer.Option("svm-ovo", help=CLASSIFIER_HELP),
-    protocol: str = typer.Option("kfold", help="kfold, mixed-5fold, person-dependent, holdout, "
-                                 "leave-one-{session,person,repetition,pressure,rig}-out "
-                                 "(rig: metadata.rig; needs recordings of two rigs)."),
+    protocol: str = typer.Option("kfold", help=PROTOCOL_HELP),
     project: str = typer.Option("auto", help=PROJECT_HELP),
     relaxation: bool = typer.Option(False, help=RELAXATION_HELP),
     target: str = typer.Option("label", help="Metadata key to predict, e.g. layers."),

@@ -45,7 +45,7 @@ _PRIOR_HELP = ("NAME=CENTRE,SD: a Normal prior (repeatable); for a log-scale par
                "the median and SD that of its log, e.g. --prior ramp=0.15,0.3 (default "
                "ramp=0.125,0.3); NAME=none: flat over its bounds.")
 _UNCERTAINTY_HELP = ("Posterior per row: none, laplace (quantiles of the fit's Gaussian, "
-                     "milliseconds a row), emcee (slow: about a second a motion, ~15 s a whole "
+                     "milliseconds a row), emcee (slow: about a second a motion, ~7 s a whole "
                      "fit's row; check uq_converged) or auto (Laplace; emcee where Laplace is "
                      "doubtful).")
 
@@ -377,7 +377,7 @@ def _fit_whole(files: list[Path], strict: bool, law: str, channels: tuple[str, .
     frame.insert(2, "timing", ["motor" if d.motor is not None else "force" for d in items])
     if uncertainty != "none":
         with stage(f"posteriors ({uncertainty}) of {_count(len(items), 'row')}"
-                   + (", ~15 s a row" if uncertainty != "laplace" else "")):
+                   + (", ~7 s a row" if uncertainty != "laplace" else "")):
             post = result.posterior(method=uncertainty)
         frame = frame.merge(post.to_frame(ids), on="trial")
         typer.echo(f"posteriors ({uncertainty}) in {post.wall_s:.1f} s: {post.verdict()}")
