@@ -189,3 +189,20 @@ def test_the_material_on_simulated_rigs_is_one_row_per_rig():
     assert "| rig | measurements | converged | k | f_kin | relax_frac | tau |" in table
     assert "| sim-a | 35 | 0.9 | 0.3 | 0.02 | 0.5 | 0.25 |" in table
     assert "| sim-b | 35 | 1 | 0.3 | 0.02 | 0.5 | 0.25 |" in table
+
+
+def test_whole_measurement_coverage_is_one_row_per_parameter():
+    whole = {"whole_n": 70, "whole_n_emcee": 12, "whole_channel": "index_x",
+             "whole_laws": {"measurement-rich": 70}, "whole_laplace_s_per_recording": 0.01,
+             "whole_emcee_max_steps": 2000, "whole_emcee_coverage_over": "converged rows",
+             "whole_emcee_converged_rate": 0.25, "whole_emcee_s_per_recording": 15.0,
+             "whole_coverage_by_param": {"laplace": {"k": [0.7, 0.96], "tau": [0.5, 0.8]},
+                                         "emcee": {"k": [0.5, 1.0]},
+                                         "emcee_all_rows": {"k": [0.6, 0.9]}},
+             "whole_coverage_n_by_param": {"laplace": {"k": 70, "tau": 69},
+                                           "emcee": {"k": 3}}}
+    md = to_markdown(merge([dict(UNC, summary=dict(UNC["summary"], **whole))]))
+    table = md.split("## uncertainty: coverage of whole-measurement posteriors")[1]
+    assert "converged 0.25, 15 s per recording" in table
+    assert "| k | 0.7 | 0.96 | 70 | 0.5 | 1 | 3 | 0.6 | 0.9 |" in table
+    assert "| tau | 0.5 | 0.8 | 69 | None | None | None | None | None |" in table

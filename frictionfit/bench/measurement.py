@@ -22,6 +22,7 @@ from frictionfit.bench.timing import alternate, timed
 from frictionfit.errors import Status
 from frictionfit.fit.measurement_data import MeasurementData, measurement_data
 from frictionfit.models import MeasurementModel
+from frictionfit.recording import Recording
 from frictionfit.simulation.materials import CLASSES
 from frictionfit.simulation.measurements import (
     measurement_truth,
@@ -32,7 +33,7 @@ from frictionfit.simulation.rigs import DEFAULT, SimulatedRig
 from frictionfit.whole_fit import fit_recordings
 
 __all__ = ["COST_TIE", "KEY_PARAMS", "PEER_N", "RECOVERY_N", "numpy_predict", "numpy_residual",
-           "recovery"]
+           "recovery", "simulated_measurements"]
 
 #: The law parameters whose recovery is scored (the material's physics).
 KEY_PARAMS = ("k", "f_kin", "f_static_excess", "relax_frac", "tau")
@@ -51,6 +52,16 @@ PEER_N = 16
 COST_TIE = 1e-3
 
 
+def simulated_measurements(n: int, seed: int = 0, *, position_rate_hz: float = 0.0,
+                           rig: SimulatedRig = DEFAULT) -> list[Recording]:
+    """``n`` simulated measurements with their truth in the sidecar: every
+    class of :data:`~frictionfit.simulation.materials.CLASSES` in turn, in session 1, then
+    2, ...; one trial each. ``position_rate_hz`` > 0: with the motor's position reads (Hz);
+    ``rig``: the simulated rig they are made on."""
+    specs = [(1 + i // len(CLASSES), CLASSES[i % len(CLASSES)], 1) for i in range(n)]
+    return simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz, rig=rig)
+
+
 def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
              n_peer: int = PEER_N, n_numpy: int = 2, position_rate_hz: float = 0.0,
              rig: SimulatedRig = DEFAULT) -> dict:
@@ -63,8 +74,7 @@ def recovery(n: int = RECOVERY_N, seed: int = 0, channel: str = "index_x",
     (seconds per recording each). ``position_rate_hz`` > 0: the measurements carry the
     motor's position reads, and the fits take each movement's timing from them. ``rig``:
     the simulated rig the measurements are made on."""
-    specs = [(1 + i // len(CLASSES), CLASSES[i % len(CLASSES)], 1) for i in range(n)]
-    recs = simulate_measurements(specs, seed=seed, position_rate_hz=position_rate_hz, rig=rig)
+    recs = simulated_measurements(n, seed, position_rate_hz=position_rate_hz, rig=rig)
     items = [measurement_data(r, channel) for r in recs]
     start = time.perf_counter()
     fit_recordings(items, progress=False)

@@ -154,6 +154,10 @@ def to_markdown(bench: Mapping) -> str:
         if stage.get("summary", {}).get("rigs"):
             lines += _rigs(f"{name}: the material on simulated rigs", stage["summary"]["rigs"])
     for name, stage in bench.get("stages", {}).items():
+        if stage.get("summary", {}).get("whole_coverage_by_param"):
+            lines += _whole_coverage(f"{name}: coverage of whole-measurement posteriors",
+                                     stage["summary"])
+    for name, stage in bench.get("stages", {}).items():
         for model, scores in stage.get("summary", {}).get("lab", {}).items():
             lines += _lab(f"{name}, {model}: {stage.get('dataset', 'lab recordings')}", scores)
     lines += ["## Summary", ""]
@@ -231,6 +235,31 @@ def _measurements(heading: str, meas: Mapping) -> list[str]:
                           p["n_peer_cost_higher"], p["n_peer_cost_lower"]]
                          for peer, p in meas["peers"].items()])
     return lines
+
+
+def _whole_coverage(heading: str, s: Mapping) -> list[str]:
+    """One row per key law parameter: the share of whole-measurement rows whose truth lies
+    in the 68 % and 95 % posterior intervals, Laplace and emcee, with the rows counted."""
+    cov, n = s["whole_coverage_by_param"], s.get("whole_coverage_n_by_param", {})
+    lines = [f"## {heading}", "",
+             f"{s['whole_n']} simulated measurements ({s['whole_channel']}), fitted whole with "
+             f"the defaults (laws {s.get('whole_laws')}); truth within the posterior's "
+             f"68 % (p16-p84) and 95 % (p2.5-p97.5) intervals. Laplace over the rows with a "
+             f"finite posterior ({s['whole_laplace_s_per_recording']:.3g} s per recording); "
+             f"emcee on the first {s['whole_n_emcee']}, step cap {s['whole_emcee_max_steps']}, "
+             f"over {s['whole_emcee_coverage_over']}: converged "
+             f"{_fmt(s['whole_emcee_converged_rate'])}, "
+             f"{_fmt(s['whole_emcee_s_per_recording'])} s per recording.", ""]
+
+    def pair(method: str, p: str) -> list:
+        return list(cov.get(method, {}).get(p) or [None, None])
+
+    params = list(cov.get("laplace", {}) or cov.get("emcee", {}))
+    return lines + _table(
+        ["parameter", "Laplace 68 %", "Laplace 95 %", "rows", "emcee 68 %", "emcee 95 %",
+         "rows", "emcee, all rows 68 %", "95 %"],
+        [[p, *pair("laplace", p), n.get("laplace", {}).get(p), *pair("emcee", p),
+          n.get("emcee", {}).get(p), *pair("emcee_all_rows", p)] for p in params])
 
 
 def _lab(heading: str, lab: Mapping) -> list[str]:

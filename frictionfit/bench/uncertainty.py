@@ -18,6 +18,9 @@ method, not the fit's local minima. Then
   calibrated for truths drawn from the prior; the default prior is wider). emcee's time per
   trial is the wall time of a lockstep batch divided by its trials, median over
   ``n_batches`` batches (compile time apart; the load average is recorded with it);
+- **whole measurements**: the same coverage for whole-measurement posteriors, per key
+  law parameter, Laplace on ``n_whole`` simulated measurements and emcee on the first
+  ``n_whole_emcee`` (:mod:`frictionfit.bench.whole_coverage`);
 - **downstream**: simulated measurements of library materials (a few motions each,
   signal-to-noise drawn per motion), fitted and given Laplace posteriors; one
   feature vector per measurement from its motions, classified on the same
@@ -141,7 +144,8 @@ def coverage(post, truth: dict[str, np.ndarray], only_converged: bool = True) ->
 def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
         n_calibration: int | None = None, n_calibration_emcee: int | None = None,
         n_reference: int | None = None, reference_max_steps: int | None = None,
-        downstream_size: tuple[int, int, int] | None = None) -> dict:
+        downstream_size: tuple[int, int, int] | None = None, n_whole: int | None = None,
+        n_whole_emcee: int | None = None) -> dict:
     """Run the uncertainty benchmark; ``quick=True`` is a small smoke run for tests.
 
     Parameters
@@ -164,6 +168,13 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
         Step cap of the long reference run (6000 full, 400 quick).
     downstream_size : (classes, measurements per class, motions), optional
         Size of the downstream classification (35, 10, 4 full; 4, 5, 2 quick).
+    n_whole : int, optional
+        Simulated whole measurements (``index_x``) of the whole-measurement calibration
+        (:func:`~frictionfit.bench.whole_coverage.whole_calibration`), Laplace on all of
+        them; 70 (full) or 2 (quick) by default; 0 skips that part.
+    n_whole_emcee : int, optional
+        How many of those also get emcee (step cap 2000; quick: 20); 12 (full) or 1
+        (quick) by default; 0 skips whole-fit emcee.
 
     Returns
     -------
@@ -186,13 +197,26 @@ def run(*, quick: bool = False, seed: int = 0, model: str | None = None,
     auto = _posterior(ts, fit, "auto", seed, max_steps=cap)  # the reference trials
     nc, nm, nmo = downstream_size or (None, None, None)
     down = downstream(quick=quick, seed=seed, n_classes=nc, n_measurements=nm, n_motions=nmo)
+    whole = _whole(quick, seed, n_whole, n_whole_emcee)
     summary = {
-        "model": model, "n_calibration": n_cal, "n_reference": n_ref, **calibration,
+        "model": model, "n_calibration": n_cal, "n_reference": n_ref, **calibration, **whole,
         "auto_emcee_fraction_reference_trials": float(np.mean([m == "emcee" for m in auto.method])),
         **{k: v for k, v in down.items() if k.startswith("downstream_")},
     }
     return {"stage": "uncertainty", "summary": summary, "points": points,
             "downstream": down, "machine": machine_info()}
+
+
+def _whole(quick: bool, seed: int, n: int | None, n_emcee: int | None) -> dict:
+    """The whole-measurement calibration's summary entries (none when ``n`` is 0)."""
+    from frictionfit.bench.whole_coverage import whole_calibration  # it imports this module
+
+    n = (2 if quick else 70) if n is None else n
+    if n <= 0:
+        return {}
+    n_emcee = (1 if quick else 12) if n_emcee is None else n_emcee
+    return whole_calibration(n, n_emcee, seed=seed, emcee_max_steps=20 if quick else 2000,
+                             emcee_pilot_steps=5 if quick else 30)
 
 
 def _points(ts, fit, ref, seed: int, p: int, n_ref: int, cap: int, quick: bool
