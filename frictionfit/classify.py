@@ -32,6 +32,7 @@ from sklearn.utils.validation import check_is_fitted, validate_data
 from frictionfit.calibration import (
     CalibratedPipeline,
     accuracy_at_coverage,
+    calibrated_ece,
     expected_calibration_error,
     feature_draws,
     top_classes,
@@ -396,12 +397,16 @@ class Evaluation:
                 == self.predictions["predicted"].astype(str)).to_numpy()
 
     def calibration(self, coverage: float = 0.9, n_bins: int = 15) -> dict[str, float]:
-        """``ece`` (top-class probability, ``n_bins`` bins) and ``accuracy_at_<coverage>``
-        (on the most confident recordings); empty without probabilities."""
+        """``ece`` (top-class probability, ``n_bins`` bins), ``ece_if_calibrated`` (the
+        median ECE of a calibrated classifier at these probabilities and this many
+        recordings: :func:`~frictionfit.calibration.calibrated_ece`) and
+        ``accuracy_at_<coverage>`` (on the most confident recordings); empty without
+        probabilities."""
         if "probability" not in self.predictions:
             return {}
         conf = self.predictions["probability"].to_numpy()
         return {"ece": expected_calibration_error(conf, self.correct, n_bins),
+                "ece_if_calibrated": calibrated_ece(conf, n_bins)[0],
                 f"accuracy_at_{coverage:g}": accuracy_at_coverage(conf, self.correct, coverage)}
 
 

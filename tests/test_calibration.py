@@ -9,6 +9,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 from frictionfit.calibration import (
     CalibratedPipeline,
     accuracy_at_coverage,
+    calibrated_ece,
     coverage_curve,
     expected_calibration_error,
     feature_draws,
@@ -34,6 +35,23 @@ def test_ece_is_zero_when_confidence_equals_accuracy_and_the_gap_otherwise():
     assert expected_calibration_error(conf, correct) == pytest.approx((2 * 0.3 + 8 * 0.1) / 10)
     table = reliability_table(conf, correct, n_bins=15)
     assert table["n"].sum() == 10 and len(table) == 15
+
+
+def test_calibrated_ece_is_what_calibrated_calls_show_and_shrinks_with_their_number():
+    rng = np.random.default_rng(3)
+    conf = rng.uniform(0.4, 1.0, 70)
+    median, high = calibrated_ece(conf)
+    # outcomes drawn right with their own probability: calibrated by construction
+    seen = [expected_calibration_error(conf, rng.random(conf.size) < conf) for _ in range(400)]
+    assert median == pytest.approx(np.median(seen), abs=0.01)
+    assert np.mean(np.array(seen) <= high) == pytest.approx(0.95, abs=0.03)
+    # an overconfident classifier (right half the time at 0.7-1.0) lies far above the range
+    over = rng.uniform(0.7, 1.0, 70)
+    assert expected_calibration_error(over, np.arange(70) % 2 == 0) > calibrated_ece(over)[1]
+    assert calibrated_ece(np.tile(conf, 8))[0] < median / 2  # 8x the calls: ~1/sqrt(8)
+    assert calibrated_ece(conf, seed=1) != calibrated_ece(conf, seed=2)
+    assert calibrated_ece(conf) == calibrated_ece(conf)
+    assert all(np.isnan(calibrated_ece([])))
 
 
 def test_coverage_curve_keeps_the_most_confident_first():
@@ -164,8 +182,9 @@ def test_evaluate_reports_probabilities_top3_and_calibration_scores(overlapping,
     assert (ev.predictions["probability"] <= ev.predictions["p1"] + 1e-12).all()
     assert ev.probabilities.shape == (len(overlapping), 3)
     scores = ev.calibration()
-    assert set(scores) == {"ece", "accuracy_at_0.9"}
+    assert set(scores) == {"ece", "ece_if_calibrated", "accuracy_at_0.9"}
     assert 0.0 <= scores["ece"] <= 1.0
+    assert scores["ece_if_calibrated"] == calibrated_ece(ev.predictions["probability"])[0]
     plot_reliability(ev.predictions["probability"], ev.correct, tmp_path / "r.png", "t")
     assert (tmp_path / "r.png").stat().st_size > 10_000
     plain = evaluate(overlapping, protocol="leave-one-session-out",

@@ -63,7 +63,10 @@ def test_train_then_predict_round_trip(folders, tmp_path):
     assert table["probability"].between(0, 1).all()
     assert (table["probability"] <= table["p1"] + 1e-12).all()
     assert (table["p1"] >= table["p2"]).all()
-    assert result.output.strip().splitlines()[-1].startswith("accuracy: ")
+    *_, ece_line, last = result.output.strip().splitlines()
+    assert last.startswith("accuracy: ")
+    assert ece_line.startswith("expected calibration error (15 bins): ")
+    assert f"on {len(table)} recordings: " in ece_line
     # --abstain: exactly the recordings whose top probability is below it abstain, said
     cut = float(table["probability"].max()) + 1e-9 if table["probability"].max() < 1 else 1.0
     below = int((table["probability"] < cut).sum())
@@ -154,7 +157,8 @@ def test_evaluate_prints_accuracy_last_and_saves(folders, tmp_path):
     last = result.output.strip().splitlines()[-1]
     assert last.startswith("accuracy: ") and 0.0 <= float(last.split()[-1]) <= 1.0
     assert list(pd.read_csv(out).columns) == ["features", "classifier", "protocol", "accuracy",
-                                              "macro_f1", "ece", "accuracy_at_0.9"]
+                                              "macro_f1", "ece", "ece_if_calibrated",
+                                              "accuracy_at_0.9"]
     assert png.stat().st_size > 0 and rel.stat().st_size > 0
     assert {"recording", "true", "predicted", "probability", "top3"} <= set(pd.read_csv(pred))
 

@@ -258,14 +258,29 @@ def predict(
     table.to_csv(out, index=False)
     typer.echo(f"{len(table)} predictions -> {out}")
     if "true" in table:
-        decided = table["predicted"].astype(str) != "abstain"
-        acc = float(np.mean(table["true"].astype(str)[decided]
-                            == table["predicted"].astype(str)[decided])) if decided.any() else 0.0
-        if not decided.all():
-            typer.echo(f"abstained on {int((~decided).sum())} of {len(table)} recordings "
-                       f"(top probability below {abstain:g}); accuracy over the "
-                       f"{int(decided.sum())} decided")
-        typer.echo(f"accuracy: {acc:.3f}")
+        _say_scores(table, abstain)
+
+
+def _say_scores(table, abstain: float) -> None:
+    """Print, for the decided calls of a predictions ``table`` with true labels, their ECE
+    beside a calibrated classifier's on as many (with probabilities), then the accuracy."""
+    import numpy as np
+
+    from frictionfit.calibration import calibrated_ece, expected_calibration_error
+
+    decided = (table["predicted"].astype(str) != "abstain").to_numpy()
+    right = (table["true"].astype(str) == table["predicted"].astype(str)).to_numpy()[decided]
+    if not decided.all():
+        typer.echo(f"abstained on {int((~decided).sum())} of {len(table)} recordings "
+                   f"(top probability below {abstain:g}); accuracy over the "
+                   f"{int(decided.sum())} decided")
+    if "probability" in table and right.size:
+        conf = table["probability"].to_numpy()[decided]
+        ece, (median, high) = expected_calibration_error(conf, right), calibrated_ece(conf)
+        typer.echo(f"expected calibration error (15 bins): {ece:.3f}; a calibrated "
+                   f"classifier's at these probabilities on {right.size} recordings: "
+                   f"{median:.3f} (95 %: {high:.3f})")
+    typer.echo(f"accuracy: {float(np.mean(right)) if right.size else 0.0:.3f}")
 
 
 def _say_rigs(saved: dict, model: Path, recordings: list) -> None:
