@@ -54,7 +54,8 @@ def test_report_lists_priors_and_bad_priors_are_named(trials):
     ts = simulate_trials(RELAX, 1, seed=13)
     res = _fit(ts, priors={"ramp": (0.15, 0.2)})
     assert "ramp             median 0.15 s, log sd 0.2" in fit_report(res, 0)
-    assert get_model(RELAX, priors={"ramp": None}).prior_table == {}
+    assert get_model(RELAX, priors={"ramp": None}).prior_table == {"slip_length": (0.05, 1.5)}
+    assert get_model(RELAX, priors={"ramp": None, "slip_length": None}).prior_table == {}
     with pytest.raises(FitError, match="ramp"):
         _fit(ts, priors={"ramp": (2.0, 0.3)})  # outside the bounds (0.005, 1) s
     with pytest.raises(FitError, match="no parameter 'stiffness'"):

@@ -43,7 +43,7 @@ _CREEP_HELP = ("Whole fits: recording (the finger's creep, the slow relaxation b
                "into the stderrs; a recording alone in its session keeps its own).")
 _PRIOR_HELP = ("NAME=CENTRE,SD: a Normal prior (repeatable); for a log-scale parameter CENTRE is "
                "the median and SD that of its log, e.g. --prior ramp=0.15,0.3 (default "
-               "ramp=0.125,0.3); NAME=none: flat over its bounds.")
+               "ramp=0.125,0.3 and slip_length=0.05,1.5); NAME=none: flat over its bounds.")
 _UNCERTAINTY_HELP = ("Posterior per row: none, laplace (quantiles of the fit's Gaussian, "
                      "milliseconds a row), emcee (slow: about a second a motion, ~7 s a whole "
                      "fit's row; check uq_converged) or auto (Laplace; emcee where Laplace is "

@@ -247,8 +247,9 @@ def fit_breakaway(recordings: Sequence[Recording], max_steps: int = 200) -> np.n
         rest = y - np.vstack([_load_term(yi, ni) for yi, ni in zip(y, n, strict=True)])
         guesses = [_start_guess(ri, xi, t[-1]) for ri, xi in zip(rest, x, strict=True)]
         sign = np.asarray([g[1] for g in guesses])
+        # flat in slip_length: its default prior is sized for a rubbing stroke, not a slide
         kw = {"model": CONTACT_MODEL, "drive": "given", "direction": sign,
-              "max_steps": max_steps}
+              "max_steps": max_steps, "priors": {"slip_length": None}}
         res = fit_trials(rest, t, x, u0=np.asarray([g[0] for g in guesses]), **kw)
         law = np.vstack([res.predict(r, t) for r in range(len(idx))])
         rest = y - np.vstack([_load_term(yi - li, ni)

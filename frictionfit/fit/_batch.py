@@ -211,7 +211,7 @@ def fit_trials(
         The rig's finger stroke (mm) for ``drive="events"``; stiffness is per mm of it.
     priors : mapping name -> (centre, sd) or None, optional
         Normal priors on sampling coordinates (``loglogit``: median in its unit, sd of
-        the log) replacing the defaults (``RAMP_PRIOR`` on ``ramp``); ``None``: flat.
+        the log) updating the defaults (``RAMP_PRIOR``, ``SLIP_PRIOR``); ``None``: flat.
         The fit is then the MAP estimate; chi-square, AIC and BIC are of the data.
     threads : int, optional
         Host threads, a pool each (default: the cores this process may use; results do

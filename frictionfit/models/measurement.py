@@ -56,14 +56,6 @@ def jit_host_loop(fn: Callable) -> Callable:
     return jax.jit(fn, compiler_options=HOST_LOOP_COMPILER_OPTIONS)
 
 
-#: Default priors of the measurement model beyond the parameters' own: the slip-weakening
-#: length, median 0.05 mm, log sd 1.5 (95 % within 0.003-1 mm). Without it a contact with
-#: no static peak has a second optimum: a "static excess" that never weakens within the
-#: stroke (slip length >> stroke) standing in for the kinetic level, f_kin near zero. Where
-#: the force droops over each slide the data outweigh the prior; the length's bound, one
-#: stroke (:func:`_peak_within_stroke`), closes that optimum.
-PRIORS = {"slip_length": (0.05, 1.5)}
-
 #: Contact laws of the measurement model (names of ``contact_force`` arguments): ``no_peak2``
 #: has no static peak (the slider slips at its kinetic level), two Maxwell branches.
 LAWS: dict[str, tuple[str, ...]] = {
@@ -137,8 +129,7 @@ class MeasurementModel(eqx.Module, NamedParameters):
                     ) -> MeasurementModel:
         """This model with the default priors updated by ``priors`` (``None``: flat)."""
         own = dict(zip(self.param_names, self.params, strict=True))
-        table = {n: p.prior for n, p in own.items()} | {
-            n: p for n, p in PRIORS.items() if n in self.param_names}
+        table = {n: p.prior for n, p in own.items()}
         for name, prior in (priors or {}).items():
             if name not in table:
                 raise ValueError(f"no parameter {name!r} to put a prior on; "
@@ -149,11 +140,9 @@ class MeasurementModel(eqx.Module, NamedParameters):
 
     @property
     def prior_table(self) -> dict[str, tuple[float, float]]:
-        """Name -> ``(centre, sd)`` of the priors in force (default: :data:`PRIORS`, then
-        each parameter's own)."""
+        """Name -> ``(centre, sd)`` of the priors in force (default: each parameter's own)."""
         if self.priors is None:
-            own = {p.name: p.prior for p in self.params if p.prior is not None}
-            return own | {n: p for n, p in PRIORS.items() if n in self.param_names}
+            return {p.name: p.prior for p in self.params if p.prior is not None}
         return {n: (c, sd) for n, c, sd in self.priors}
 
     def finger(self, u, t, commands, signs, stretch=None):

@@ -29,9 +29,11 @@ Moves: an *adaptive independence sampler*, in the sampling coordinates of
    0.8 / 0.2 with the Laplace t (defensive).
 2. The kept chain: 0.8 independence MH from that proposal + 0.2 random walk in the
    straightened coordinates (unsticks walkers in the tails). If the chain has not
-   converged at 100 and 200 steps and its largest tau exceeds :data:`REFIT_MIN_TAU`,
-   the proposal is refitted on every draw so far and the chain restarted (those
-   steps count as pilot, ``ChainResult.n_pilot``).
+   converged at the refit points (``refit_at``: by default 100 steps, then 200, 500 and
+   1000 steps after each restart) and its largest tau exceeds :data:`REFIT_MIN_TAU`, the
+   proposal is refitted on the draws so far and the chain restarted (those steps count
+   as pilot, ``ChainResult.n_pilot``). The later points give a chain whose proposal missed
+   a tail or a bend a proposal fitted on a longer chain.
 
 Why an independence sampler and not DE or stretch moves: the posterior is a long, thin,
 curved ridge (``k / ramp**2`` fixed by a trial's onset) along which those moves crawl,
@@ -361,7 +363,7 @@ def run_lockstep(
     backends: list | None = None,
     pilot_steps: int = 30,
     pilot_stages: int = 3,
-    refit_at: tuple[int, ...] = (100, 200),
+    refit_at: tuple[int, ...] = (100, 200, 500, 1000),
 ) -> list[ChainResult | BaseException]:
     """Sample every trial's posterior with emcee, all trials in one shared ensemble.
 
@@ -385,7 +387,8 @@ def run_lockstep(
     pilot_steps, pilot_stages : int
         Adaptation: steps per pilot stage and number of stages.
     refit_at : tuple of int
-        Chain lengths at which a slowly mixing chain is refitted and restarted.
+        Chain lengths at which a slowly mixing chain is refitted and restarted, each
+        counted from the previous restart (their sum adds to a chain's step cap).
 
     Returns
     -------

@@ -71,6 +71,12 @@ from frictionfit.uncertainty.posterior import Posterior
 
 __all__ = ["measurement_posterior", "whole_fit_posterior"]
 
+#: Chain lengths at which a whole fit's slowly mixing chain is refitted and restarted
+#: (:func:`~frictionfit.uncertainty._ensemble.run_lockstep`): only the early ones. Its
+#: chains' autocorrelation times (100-200 steps with every proposal tried) need more steps
+#: than the cap allows, and each later restart would add its length to their time.
+WHOLE_REFIT_AT = (100, 200)
+
 _SKIP = (Status.NONFINITE, Status.INSUFFICIENT_DATA)
 
 
@@ -193,7 +199,8 @@ def whole_fit_posterior(
         _sample_group(fit, model, free, np.array(rows), method, n_draws, rng, out,
                       dict(nwalkers=nwalkers or len(free) + 1, seed=seed,
                            max_steps=max_steps, check_every=check_every,
-                           min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps))
+                           min_tau_multiple=min_tau_multiple, pilot_steps=pilot_steps,
+                           refit_at=WHOLE_REFIT_AT))
     units = [_in_reported_units(fit, i, out) for i in range(n)]
     return Posterior(model=list(fit.model), wall_s=time.perf_counter() - start, units=units,
                      **out)
