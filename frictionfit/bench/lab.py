@@ -34,6 +34,7 @@ from frictionfit.datasets.rubbing_lab import load
 from frictionfit.errors import Status
 from frictionfit.features.physical import FITTED_CHANNELS, PhysicalFeatures
 from frictionfit.fit.measurement_data import measurement_data
+from frictionfit.models.measurement import NAME_PREFIX
 from frictionfit.whole_fit import fit_recordings
 
 __all__ = ["DETERMINED", "FITS", "run"]
@@ -110,7 +111,7 @@ def _per_item(recordings, channels: Sequence[str], fit) -> pd.DataFrame:
     for i, (rec, ch) in enumerate((r, c) for r in recordings for c in channels):
         row = {"channel": ch, "label": rec.label, "material": rec.metadata.get("material"),
                "layers": rec.metadata.get("layers"), "session": rec.metadata.get("session"),
-               "law": fit.model[i].removeprefix("measurement-"), "status": int(fit.status[i])}
+               "law": fit.model[i].removeprefix(NAME_PREFIX), "status": int(fit.status[i])}
         for p in DETERMINED:
             value = fit.values.at[i, p]
             row[p] = np.log10(value) if value > 0 else np.nan

@@ -35,12 +35,15 @@ import numpy as np
 
 from frictionfit.models import _pure, _xla
 from frictionfit.models._forward import channel_values, timing_normal_equations
-from frictionfit.models.family import PARAMS, NamedParameters
+from frictionfit.models.family import PARAMS, ContactModel, NamedParameters, get_model
 from frictionfit.models.params import Param
 from frictionfit.models.stick_slip import contact_force
 
-__all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "RIG", "MeasurementModel", "jit_host_loop",
-           "to_unconstrained", "trapezoid"]
+__all__ = ["HOST_LOOP_COMPILER_OPTIONS", "LAWS", "NAME_PREFIX", "RIG", "MeasurementModel",
+           "jit_host_loop", "model_named", "to_unconstrained", "trapezoid"]
+
+#: What a whole-measurement model's name starts with (``measurement-<law>``).
+NAME_PREFIX = "measurement-"
 
 #: XLA's options for a program whose work is the compiled loop (its XLA target,
 #: :mod:`frictionfit.models._xla`): LLVM's optimisation off. Such a program is the loop's
@@ -108,7 +111,7 @@ class MeasurementModel(eqx.Module, NamedParameters):
 
     @property
     def name(self) -> str:
-        return f"measurement-{self.law}"
+        return f"{NAME_PREFIX}{self.law}"
 
     @property
     def law_names(self) -> tuple[str, ...]:
@@ -252,6 +255,14 @@ def _peak_within_stroke(stroke_mm: float) -> Param:
     breaks it loose. A longer "weakening" is a level drooping over each slide, which would
     take the kinetic level's place."""
     return replace(PARAMS["slip_length"], upper=stroke_mm)
+
+
+def model_named(name: str) -> MeasurementModel | ContactModel:
+    """The model a result row names (default stroke and priors): a whole-measurement model
+    (``measurement-<law>``) or a member of the per-stroke family."""
+    if name.startswith(NAME_PREFIX):
+        return MeasurementModel(name.removeprefix(NAME_PREFIX))
+    return get_model(name)
 
 
 def _ones_if_none(stretch, commands):

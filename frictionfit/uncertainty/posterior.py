@@ -8,7 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from frictionfit.models import PARAMS, MeasurementModel, get_model
+from frictionfit.models import PARAMS
+from frictionfit.models.measurement import model_named
 from frictionfit.uncertainty._ensemble import ChainResult
 
 __all__ = ["QUANTILES", "Posterior", "corner_plot", "posterior_summary", "to_arviz"]
@@ -106,7 +107,7 @@ class Posterior:
         if chain is None:
             raise ValueError(f"trial {i} has no emcee chain (method {self.method[i]!r})")
         flat = chain.samples.reshape(-1, chain.samples.shape[-1])
-        model = _member(self.model[i])
+        model = model_named(self.model[i])
         return pd.DataFrame({p.name: np.asarray(p.to_physical(flat[:, j])) * self.unit(i, p.name)[1]
                              for j, p in enumerate(model.params)})
 
@@ -128,13 +129,6 @@ class Posterior:
                 row[f"{name}_rhat"] = self.rhat[i][name]
             rows.append(row)
         return pd.DataFrame(rows)
-
-
-def _member(name: str):
-    """The model called ``name``: a family member, or a whole-measurement model."""
-    if name.startswith("measurement-"):
-        return MeasurementModel(name.removeprefix("measurement-"))
-    return get_model(name)
 
 
 class SummaryTable(pd.DataFrame):
@@ -186,7 +180,7 @@ def to_arviz(post: Posterior, i: int = 0):
         from frictionfit._optional import require
 
         az = require("arviz", "to_arviz")
-    model = _member(post.model[i])
+    model = model_named(post.model[i])
     # emcee chains are (step, walker, p); arviz wants (chain=walker, draw=step).
     draws = {p.name: np.asarray(p.to_physical(chain.samples[:, :, j].T))
              for j, p in enumerate(model.params)}
