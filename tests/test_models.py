@@ -128,3 +128,14 @@ def test_ramp_shape_is_the_raised_cosine_to_rounding_with_its_derivative():
     inside = (u > 0) & (u < 1)
     exact = jnp.where(inside, 0.5 * jnp.pi * jnp.sin(jnp.pi * u), 0.0)
     np.testing.assert_allclose(slope, exact, rtol=0, atol=2e-15)
+
+
+def test_a_model_is_found_again_by_its_name():
+    from frictionfit.models.measurement import LAWS, MeasurementModel, model_named
+
+    for law in LAWS:
+        assert model_named(MeasurementModel(law).name) == MeasurementModel(law)
+    for name in ("stick_slip", "relaxation"):
+        assert model_named(name) == get_model(name)
+    with pytest.raises(ValueError, match="unknown law 'nope'"):
+        model_named("measurement-nope")
