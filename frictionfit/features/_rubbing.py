@@ -17,8 +17,8 @@ PHASES = ("out", "back")
 
 @kept_per_recording
 def _segmented(rec: Recording, filter_n: int | None) -> list[Motion]:
-    """``segment(rec, filter_n=filter_n)``, once per recording: the feature sets of one
-    pipeline (``measured`` and ``fitted``) ask for the same recordings' motions."""
+    """``segment(rec, filter_n=filter_n)``, kept per recording: every feature set of a
+    pipeline gets the same list of motions."""
     return segment(rec, filter_n=filter_n)
 
 

@@ -35,8 +35,7 @@ slope between the command and the peak: loading stiffness times drive speed) and
 oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
 50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free. The
 relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are kept only with
-``relaxation=True``: how the force relaxes after a stroke depends on the rig's finger as
-much as on the material.
+``relaxation=True``.
 
 **Missing values.** A trial whose fit fails (any status but CONVERGED and
 ILL_CONDITIONED, whose values stand though some may be poorly determined; and
@@ -173,19 +172,15 @@ class PhysicalFeatures(RecordingFeatures):
     Parameters
     ----------
     fitted : bool, default False
-        Include the fitted quantities (see the module notes). Off by default: they cost
-        a whole-measurement fit per recording.
+        Include the fitted quantities (see the module notes): a whole-measurement fit per
+        recording.
     measured : bool, default True
         Include the quantities read off the force per movement phase.
     shape : bool, default True
-        Include the gain-free shape quantities (``slip_ripple``, ``relax_<ms>ms``). They
-        suit the LDA projection of :func:`frictionfit.classify.make_pipeline`; without
-        it they add many weakly informative directions for an RBF kernel on raw scales.
+        Include the gain-free shape quantities (``slip_ripple``, ``relax_<ms>ms``).
     model : str, default "relaxation2"
         Contact law of the measurement fit (``frictionfit.models.measurement.LAWS``), or
-        ``"auto"`` (no static peak, a static peak, or one with damping, by BIC). One law
-        for every recording keeps the parameters' meaning (every recording has the same
-        ones).
+        ``"auto"`` (no static peak, a static peak, or one with damping, by BIC).
     rig : {"recording", "session"}, default "recording"
         Where the motor's profile is fitted: per recording, or once per session (the median
         over the session's recordings featurised together).
@@ -198,25 +193,21 @@ class PhysicalFeatures(RecordingFeatures):
         featurise a session in one call.
     relaxation : bool, default False
         Include the relaxation quantities: fitted ``relax_frac``, ``tau`` and ``drag``, and
-        ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms`` read off the force. They describe
-        the rig (its finger's creep and play, its motor) as much as the material, so a
-        model meant to hold on another rig leaves them out; True keeps them, for one rig.
+        ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms`` read off the force.
     decimate : int, default 1
         Samples averaged per fitted point while the finger moves (10 while it holds).
     max_steps : int, default 200
         Solver step budget per trial.
     accept_max_steps : bool, default True
-        Keep the last iterate of fits that ran out of steps (their values are
-        least-squares improvements over the start, often not yet converged in
-        ill-determined directions); False makes them NaN.
+        Keep the last iterate of fits that ran out of steps (status MAX_STEPS); False
+        makes their values NaN.
     with_stderr : bool, default False
         Add the fitted parameters' standard errors.
     channels : tuple of str
         Force channels to use, by name.
     wear : bool, default False
         Fit the kinetic level's ``wear`` over the measurement (the whole fits do by
-        default); held at 0 otherwise, as it describes the recording more than the
-        material.
+        default); held at 0 otherwise.
     cache : bool, default True
         Cache rows by recording content.
 
@@ -493,8 +484,7 @@ def _per_stroke(name: str) -> str:
 
 class FittedFeatures(PhysicalFeatures):
     """The fitted contact-law parameters alone (:class:`PhysicalFeatures` with
-    ``fitted=True`` and ``measured=False``): every feature a physical property of the
-    contact."""
+    ``fitted=True`` and ``measured=False``)."""
 
     def __init__(self, fitted: bool = True, measured: bool = False, shape: bool = True,
                  model: str = "relaxation2", rig: str = "recording", creep: str = "recording",
