@@ -339,9 +339,8 @@ def calibrated_ece(confidence, n_bins: int = 15, n_draws: int = 4000,
     if confidence.size == 0:
         return float("nan"), float("nan")
     right = np.random.default_rng(seed).random((n_draws, confidence.size)) < confidence
-    which = _bin_of(confidence, n_bins)
-    gap = np.zeros((n_draws, n_bins))  # per bin: sum over its calls of (right - probability)
-    np.add.at(gap.T, which, (right - confidence).T)
+    in_bin = np.eye(n_bins)[_bin_of(confidence, n_bins)]  # (calls, bins), one-hot
+    gap = (right - confidence) @ in_bin  # per draw and bin: sum of (right - probability)
     ece = np.abs(gap).sum(axis=1) / confidence.size
     return float(np.median(ece)), float(np.quantile(ece, 0.95))
 
