@@ -249,3 +249,26 @@ def test_auto_selection_picks_the_generating_member():
     assert list(res.bic_table.columns) == ["elastic_plastic", "stick_slip", "relaxation", "rich"]
     assert sum(m == "stick_slip" for m in res.model) >= 7, res.model
     assert "[[BIC by model]]" in fit_report(res, 0)
+
+
+def test_a_new_covariance_re_flags_what_depends_on_the_standard_errors():
+    # the flags a covariance sets ("stderr > value", a shape whose effect is not told from
+    # none) follow it both ways; the others ("at bound", trade-offs) stay
+    from frictionfit.fit._stats import WIDER, set_covariance, statistics
+    from frictionfit.models import PARAMS, get_model
+
+    model = get_model("relaxation")
+    names = model.param_names
+    u = np.array([[PARAMS[n].to_unconstrained(PARAMS[n].default) for n in names]] * 2)
+    u[:, names.index("relax_frac")] = PARAMS["relax_frac"].to_unconstrained(0.01)
+    jtj = np.stack([np.eye(len(names)) * 1e4] * 2)
+    jtj[0, names.index("relax_frac"), names.index("relax_frac")] = 1e-6  # relaxation unseen
+    mask = np.ones((2, 100), dtype=bool)
+    stats = statistics(model, u, np.full((2, 100), 0.01), jtj, mask)
+    assert stats["flags"][0]["tau"].startswith("relax_frac not distinguishable")
+    tight, loose = np.eye(len(names)) * 1e-8, np.eye(len(names)) * 1e4
+    set_covariance(model, u, stats, tuple(range(len(names))), np.stack([tight, loose]))
+    assert "tau" not in stats["flags"][0] and "relax_frac" not in stats["flags"][0]
+    assert stats["flags"][1]["k"] == WIDER
+    np.testing.assert_allclose(stats["cov"][1], loose)
+    assert stats["stderr"][0]["k"] < 1e-3 * stats["values"][0]["k"]

@@ -180,12 +180,12 @@ def test_emcee_starts_inside_a_bound_with_width_along_it(fitted):
         assert np.all(lp[0] >= lp[1:])
 
 
-def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
+def test_the_density_emcee_samples_has_the_fits_density_covariance_at_its_mode(fitted):
     """emcee's density is the fit's own: at the fit's optimum its gradient vanishes and its
     Gauss-Newton curvature (the data's and the priors' rows over the noise's long-run
-    variance) is the inverse of the fit's covariance, so Laplace and emcee describe one
-    posterior; the host's density (the value-only loop) is the Gauss-Newton path's (the
-    loop with its Jacobian) around it."""
+    variance) is the inverse of the fit's ``density_cov``, which the sandwich map carries to
+    the fit's covariance; the host's density (the value-only loop) is the Gauss-Newton
+    path's (the loop with its Jacobian) around it."""
     import jax.numpy as jnp
 
     from frictionfit.fit._stats import VANISHING
@@ -213,7 +213,7 @@ def test_the_density_emcee_samples_has_the_fits_covariance_at_its_mode(fitted):
         inside = [j for j, n in enumerate(res.free_names(i))
                   if res.flags[i].get(n) not in VANISHING]
         cov = np.linalg.inv(hess[np.ix_(inside, inside)])
-        sd = np.sqrt(np.diag(res.cov[i]))[inside]
+        sd = np.sqrt(np.diag(res.density_cov[i]))[inside]
         # the solver's J^T J (in the vmapped pool) against one outside it: ~1e-3
         np.testing.assert_allclose(np.sqrt(np.diag(cov)), sd, rtol=5e-3)
         # the optimum is the density's mode: its gradient is < 0.01 of a unit step's

@@ -217,7 +217,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 31  # 31: the moving averages' spans in seconds, not samples
+    _version = 32  # 32: whole fits' standard errors are the sandwich's
     _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
     #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).

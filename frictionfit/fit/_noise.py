@@ -10,13 +10,18 @@ and every use of it evaluates this model at that estimate:
   dropped), behind AIC and BIC;
 - a stroke's posterior (Laplace and emcee): :func:`ar1_log_likelihood` plus the log-priors,
   its residual for Gauss-Newton :func:`ar1_whiten`;
-- a whole fit's covariance and posterior (Laplace and emcee): the AR(1) likelihood in its
-  long-run form, independent residuals of variance :func:`long_run_variance`,
-  ``sigma^2 (1 + rho) / (1 - rho)`` (the variance of a mean of the noise). Its maximum is
-  the least-squares optimum the fit reports, and its curvature is the AR(1) covariance of
-  that estimate where the model's Jacobian varies slowly over the noise's correlation
-  length. (The whitened likelihood's maximum is another estimate, generalised least squares,
-  which the whole fit does not compute.)
+- a whole fit's density (its BIC's noise, emcee, the checks of a ridge): the AR(1)
+  likelihood in its long-run form, independent residuals of variance
+  :func:`long_run_variance`, ``sigma^2 (1 + rho) / (1 - rho)`` (the variance of a mean of
+  the noise). Its maximum is the least-squares optimum the fit reports. (The whitened
+  likelihood's maximum is another estimate, generalised least squares, which the whole fit
+  does not compute.)
+- a whole fit's covariance: the sandwich ``A^+ S A^+`` of that optimum (Huber, White), ``A``
+  the Gauss-Newton ``J^T J`` and ``S`` the Newey-West long-run covariance of the blocks'
+  scores ``J_t r_t`` (:func:`long_run_covariance`, the Bartlett kernel at Andrews' AR(1)
+  bandwidth). One noise correlation inflates every parameter alike; the scores' own
+  long-run covariance gives each parameter the correlation its own signal sees (a slow
+  drift moves a level, barely a slope that changes sign with every stroke).
 
 The functions take NumPy or JAX arrays (the trials along the leading axes, the samples
 along the last) and return the same kind.
@@ -29,7 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["RHO_MAX", "ar1_deviance", "ar1_estimate", "ar1_log_likelihood", "ar1_whiten",
-           "lag1_rho", "long_run_variance"]
+           "bartlett_lags", "lag1_rho", "long_run_covariance",
+           "long_run_variance"]
 
 #: Bound on |rho| (keeps ``log(1 - rho^2)`` finite).
 RHO_MAX = 0.99
@@ -119,3 +125,32 @@ def long_run_variance(sigma, rho):
     of the AR(1) likelihood's long-run form (units of ``sigma`` squared)."""
     r = np.minimum(rho, RHO_CAP)
     return sigma**2 * (1.0 + r) / (1.0 - r)
+
+
+def bartlett_lags(rho, n) -> np.ndarray:
+    """Lags of the Bartlett kernel per item: Andrews' (1991) AR(1) plug-in bandwidth
+    ``1.1447 (alpha n)^(1/3)``, ``alpha = 4 r^2 / ((1 - r)^2 (1 + r)^2)``, ``r`` the lag-one
+    coefficient ``rho`` within ``+-RHO_CAP``, ``n`` the samples; at most ``n - 1``."""
+    r = np.clip(np.asarray(rho, dtype=np.float64), -RHO_CAP, RHO_CAP)
+    alpha = 4.0 * r**2 / ((1.0 - r) ** 2 * (1.0 + r) ** 2)
+    lags = np.ceil(1.1447 * (alpha * np.asarray(n)) ** (1.0 / 3.0))
+    return np.minimum(lags, np.maximum(np.asarray(n) - 1, 0)).astype(np.int64)
+
+
+def long_run_covariance(scores: np.ndarray, mask: np.ndarray, rho) -> np.ndarray:
+    """Newey-West long-run covariance ``(n_items, q, q)`` of ``scores (n_items, N, q)``
+    summed over the samples where ``mask``: ``sum_(t, t') w(t - t') s_t s_t'^T`` with
+    Bartlett weights ``w(l) = max(0, 1 - |l| / (L + 1))``, ``L`` per item from
+    :func:`bartlett_lags` (``rho``: the residuals' lag-one coefficient). Computed exactly as
+    ``sum_j W_j W_j^T / (L + 1)`` over the sums ``W_j`` of every window of ``L + 1``
+    consecutive scores of the zero-padded series: positive semidefinite, ``O(N q^2)``. Units
+    of the scores squared."""
+    s = np.where(mask[..., None], scores, 0.0)
+    lags = bartlett_lags(rho, mask.sum(axis=1))
+    out = np.empty((s.shape[0], s.shape[2], s.shape[2]))
+    for i, lag in enumerate(lags):
+        padded = np.pad(s[i], ((lag + 1, lag), (0, 0)))
+        cum = np.cumsum(padded, axis=0)
+        windows = cum[lag + 1:] - cum[: -lag - 1]
+        out[i] = windows.T @ windows / (lag + 1.0)
+    return out

@@ -37,7 +37,8 @@ from frictionfit.models import PARAMS, ContactModel
 
 __all__ = ["BIC_TIE", "CORRELATED", "GATED", "GATE_SDS", "ILL_CONDITIONED",
            "MIN_LOADING_SAMPLES", "RHO_MAX", "VANISHING", "ar1_deviance", "choose",
-           "flag_fast_loading", "flag_gated", "statistics", "status_of", "widen"]
+           "WIDER", "flag_fast_loading", "flag_gated", "set_covariance", "statistics",
+           "status_of"]
 
 #: J^T J condition number (after column scaling) above which a fit is ill-conditioned.
 ILL_CONDITIONED = 1e12
@@ -54,6 +55,9 @@ GATE_SDS = 2.0
 #: static peak the data do not show, a branch that relaxes as far as allowed) and one
 #: that no longer acts ("singular": a branch's time when its fraction sits at 0).
 VANISHING = ("at bound", "singular")
+#: Flag of a (positive) parameter whose standard error exceeds its value.
+WIDER = "stderr > value"
+_GATED_BY = " not distinguishable from "
 
 
 def _delta(par, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,7 +99,7 @@ def _flags(model: ContactModel, values, errs, scale, corr, free, fixed_names):
         elif not np.isfinite(se) or scale[jj] < 1e-12:
             flags[par.name] = "singular"
         elif _wider_than_value(par, v, se):
-            flags[par.name] = "stderr > value"
+            flags[par.name] = WIDER
         elif len(free) > 1 and abs(corr[jj, partner]) > CORRELATED:
             flags[par.name] = f"trades off with {model.param_names[free[partner]]}"
     flag_gated(flags, values, errs)
@@ -113,28 +117,31 @@ def _wider_than_value(par, value: float, stderr: float) -> bool:
     return not par.signed and stderr > abs(value)
 
 
-def widen(model: ContactModel, u: np.ndarray, stats: dict, free: tuple[int, ...],
-          extra: np.ndarray) -> None:
-    """Add ``extra`` (n_trials, p_free, p_free; unconstrained coordinates) to each trial's
-    covariance in ``stats`` (:func:`statistics`' output; in place): the uncertainty a fit
-    does not see, such as that of a value it held. Standard errors and correlations follow;
-    a parameter now wider than its value, or only shaping an effect no longer told apart
-    from none, is flagged (:func:`_flags`' rules; the other flags stay)."""
+def set_covariance(model: ContactModel, u: np.ndarray, stats: dict, free: tuple[int, ...],
+                   cov: np.ndarray) -> None:
+    """Put ``cov`` (n_trials, p_free, p_free; unconstrained coordinates) as each trial's
+    covariance in ``stats`` (:func:`statistics`' output; in place) where the trial's is
+    finite. Standard errors and correlations follow, and so do the flags that depend on
+    them: a parameter wider than its value, or only shaping an effect not told apart from
+    none (:func:`_flags`' rules; the other flags stay)."""
     names = [model.param_names[j] for j in free]
     slope = {model.param_names[j]: _delta(model.params[j], np.nan_to_num(u[:, j]))[1]
              for j in free}
-    for i, cov in enumerate(stats["cov"]):
-        if not np.all(np.isfinite(cov)):
+    for i in range(len(stats["cov"])):
+        if not (np.all(np.isfinite(stats["cov"][i])) and np.all(np.isfinite(cov[i]))):
             continue
-        cov += extra[i]
-        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        stats["cov"][i] = cov[i]
+        sd = np.sqrt(np.clip(np.diag(cov[i]), 0.0, None))
         errs, flags, values = stats["stderr"][i], stats["flags"][i], stats["values"][i]
+        for name in [n for n, f in flags.items()
+                     if f == WIDER or (n in GATED and _GATED_BY in f)]:
+            del flags[name]
         for jj, name in enumerate(names):
             errs[name] = float(abs(slope[name][i]) * sd[jj])
             par = model.params[free[jj]]
             if name not in flags and _wider_than_value(par, values[name], errs[name]):
-                flags[name] = "stderr > value"
-        stats["correl"][i] = _pairs(cov / np.maximum(np.outer(sd, sd), 1e-300), names)
+                flags[name] = WIDER
+        stats["correl"][i] = _pairs(cov[i] / np.maximum(np.outer(sd, sd), 1e-300), names)
         flag_gated(flags, values, errs)
 
 
@@ -146,7 +153,7 @@ def flag_gated(flags: dict, values: dict, errs: dict) -> None:
             continue
         lower = PARAMS[size].lower
         if not values[size] - GATE_SDS * errs[size] > lower + 1e-12 * max(abs(lower), 1.0):
-            flags[shape] = f"{size} not distinguishable from {lower:g}"
+            flags[shape] = f"{size}{_GATED_BY}{lower:g}"
 
 
 #: Samples of sticking below which the stiffness is not measured (only bounded below).

@@ -3,9 +3,12 @@
 The pools run in one host thread (:func:`~frictionfit.fit._optx.solve_pooled`): the
 contact simulation's Jacobian is a compiled loop that shares its rows over the cores
 itself. At the optimum the AR(1) noise of the weighted block residuals is estimated
-(:func:`~frictionfit.fit._noise.ar1_estimate`), and the covariance is the inverse
-Gauss-Newton Hessian of the log posterior ``-|residual|^2 / (2 s2)``, ``s2`` the noise's
-long-run variance (:func:`~frictionfit.fit._noise.long_run_variance`).
+(:func:`~frictionfit.fit._noise.ar1_estimate`). The log density ``-|residual|^2 / (2 s2)``,
+``s2`` the noise's long-run variance (:func:`~frictionfit.fit._noise.long_run_variance`),
+has its inverse Gauss-Newton Hessian as the density's covariance (its ridges checked along
+it, emcee's start); the fit's covariance is the sandwich ``A^+ S A^+`` (``A`` the
+Gauss-Newton ``J^T J``, ``S`` the long-run covariance of the blocks' scores:
+:func:`~frictionfit.fit._whole_problem.score_covariances`), the held values' share added.
 """
 
 from __future__ import annotations
@@ -21,13 +24,14 @@ from frictionfit.errors import Status
 from frictionfit.fit._noise import ar1_estimate, long_run_variance
 from frictionfit.fit._numerics import scaled_condition
 from frictionfit.fit._optx import solve_pooled
-from frictionfit.fit._stats import VANISHING, flag_gated, statistics, status_of, widen
+from frictionfit.fit._stats import VANISHING, flag_gated, set_covariance, statistics, status_of
 from frictionfit.fit._whole_problem import (
     WholeFitData,
     normal_fn,
     profile_drops,
     residual_fn,
     residuals_at,
+    score_covariances,
     stack_items,
 )
 from frictionfit.fit.derived import derived_quantities
@@ -113,8 +117,8 @@ def fit_batch(items: Sequence[MeasurementData], *, model: MeasurementModel,
 def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: WholeFitData,
             free: tuple[int, ...], fixed: tuple[str, ...], u: np.ndarray, code: np.ndarray,
             steps: np.ndarray, jtj: np.ndarray, final: bool, held_cov) -> MeasurementFit:
-    """The batch's :class:`MeasurementFit` at its optimum ``u``: statistics (covariance from
-    the one likelihood), flags, status, derived quantities."""
+    """The batch's :class:`MeasurementFit` at its optimum ``u``: statistics (the sandwich
+    covariance, the held values' share added), flags, status, derived quantities."""
     resid = residuals_at(model, free, u[:, free], data)
     mask = data.mask
     sigma, rho = ar1_estimate(resid, mask)
@@ -123,8 +127,14 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
                        hessian=jtj / s2[:, None, None])
     if final:
         _ridges_checked(model, free, u, stats, data, s2)
-    if held_cov is not None:
-        widen(model, u, stats, free, held_cov)
+    density_cov = stats["cov"].copy()
+    held_cov = (np.zeros_like(density_cov) if held_cov is None
+                else np.asarray(held_cov, dtype=np.float64))
+    finite = np.all(np.isfinite(jtj), axis=(1, 2))
+    bread = np.full_like(jtj, np.nan)
+    bread[finite] = np.linalg.pinv(jtj[finite], rcond=1e-13, hermitian=True)
+    meat = score_covariances(model, free, u[:, free], data, resid, rho)
+    set_covariance(model, u, stats, free, bread @ meat @ bread + held_cov)
     w2 = data.weight**2
     y_bar = np.sum(w2 * data.y, axis=1) / np.maximum(np.sum(w2, axis=1), 1e-300)
     ss_tot = np.sum(w2 * (data.y - y_bar[:, None]) ** 2, axis=1)
@@ -147,8 +157,7 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
         derived=(derived_quantities(model, free, u, stats["cov"], resid, items,
                                     data.direction) if final else None),
         items=list(items), fitted_models=[model] * len(items), noise_sd=sigma, noise_rho=rho,
-        held_cov=list(np.zeros((len(items), len(free), len(free))) if held_cov is None
-                      else np.asarray(held_cov, dtype=np.float64)))
+        held_cov=list(held_cov), density_cov=list(density_cov))
 
 
 #: Smallest drop of the log-posterior 2 sd out on either side of a parameter's Gaussian

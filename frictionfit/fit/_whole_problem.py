@@ -7,8 +7,8 @@ least-squares optimum is the MAP estimate under white noise of that sd);
 :func:`normal_fn` its normal equations. The log posterior of a whole fit is
 ``-|residual|^2 / (2 s2)``, ``s2`` the long-run variance of the item's AR(1) noise
 (:func:`~frictionfit.fit._noise.long_run_variance`): the one likelihood's form for whole
-fits, whose maximum is the fit's optimum. The fit's covariance, Laplace, emcee and the
-checks of a flagged ridge all evaluate it.
+fits, whose maximum is the fit's optimum. emcee and the checks of a flagged ridge evaluate
+it; the fit's covariance is the sandwich around that optimum (:func:`score_covariances`).
 """
 
 from __future__ import annotations
@@ -21,13 +21,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from frictionfit.fit._noise import long_run_covariance
 from frictionfit.fit._numerics import map_chunks
 from frictionfit.fit.measurement_data import MeasurementData
 from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import jit_host_loop
 
 __all__ = ["WholeFitData", "cost_fn", "normal_fn", "profile_drops", "residual_fn",
-           "residuals_at", "stack_items"]
+           "residuals_at", "score_covariances", "stack_items"]
 
 
 class WholeFitData(eqx.Module):
@@ -171,3 +172,31 @@ def residuals_at(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndar
     """Weighted block residuals (N) of every item at ``u_free``, in chunks of
     :data:`RESIDUAL_CHUNK` items."""
     return map_chunks(_residuals_fn(model, free), (u_free, data), RESIDUAL_CHUNK)
+
+
+@lru_cache(maxsize=16)
+def _jacobian_fn(model: MeasurementModel, free: tuple[int, ...]):
+    """Jitted, vmapped ``(u_free, data) -> d(weighted block residuals) / d u_free`` of a
+    chunk of items, ``(chunk, N, q)``."""
+    residual = residual_fn(model, free)
+
+    def one(w, data):
+        return jax.jacfwd(lambda v: residual(v, data)[: data.y.shape[-1]])(w)
+
+    return jit_host_loop(jax.vmap(one))
+
+
+def score_covariances(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndarray,
+                      data: WholeFitData, resid: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Per item ``(q, q)``: the long-run covariance of the blocks' scores ``J_t r_t``
+    (:func:`~frictionfit.fit._noise.long_run_covariance`; ``J_t`` the weighted block's
+    Jacobian row over the free parameters at ``u_free``, ``r_t`` its residual ``resid``,
+    N; ``rho`` the residuals' lag-one coefficient), in chunks of
+    :data:`RESIDUAL_CHUNK` items."""
+    jacobian = _jacobian_fn(model, free)
+
+    def chunk(u, d, r, rh):
+        scores = np.asarray(jacobian(u, d)) * np.asarray(r)[..., None]
+        return long_run_covariance(scores, np.asarray(d.weight) > 0, np.asarray(rh))
+
+    return map_chunks(chunk, (u_free, data, resid, rho), RESIDUAL_CHUNK)

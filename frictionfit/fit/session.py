@@ -106,13 +106,15 @@ def held_covariance(model: MeasurementModel, free_fit: FitResult, error: np.ndar
     parameters (those not in ``held``; unconstrained coordinates): ``B V B^T``, with ``V``
     the held values' error covariance (``error``, :func:`held_profile`) and ``B`` the
     parameters' shift per unit shift of the held ones (``names``), ``Sigma_fh Sigma_hh^-1`` in
-    the covariance of ``free_fit`` (``names`` free; a parameter its law lacks gets no share).
-    Zero where that covariance was not computed."""
+    the inverse curvature of ``free_fit``'s density (``density_cov`` where it has one, else
+    its ``cov``; ``names`` free; a parameter its law lacks gets no share). Zero where that
+    covariance was not computed."""
     rows = np.arange(free_fit.n_trials) if rows is None else rows
     free = [n for n in model.param_names if n not in held]
     out = np.zeros((len(rows), len(free), len(free)))
+    curvature = getattr(free_fit, "density_cov", None) or free_fit.cov
     for k, i in enumerate(rows):
-        cov = np.asarray(free_fit.cov[i])
+        cov = np.asarray(curvature[i])
         fitted = free_fit.free_names(i)
         if not (set(names) <= set(fitted) and np.all(np.isfinite(cov))
                 and np.all(np.isfinite(error[i]))):

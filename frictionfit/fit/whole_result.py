@@ -64,6 +64,11 @@ class MeasurementFit(FitResult):
         the finger's creep) add for their own uncertainty (the free parameters' unconstrained
         coordinates; zeros where nothing is held): ``cov`` less it is the covariance at the
         held values.
+    density_cov : list of ndarray or None
+        Per row, the inverse Gauss-Newton Hessian at the optimum of the log density emcee
+        samples (``-|residual|^2 / (2 noise_var)``, at the held values; same coordinates):
+        ``cov`` less ``held_cov`` is the sandwich around the same optimum
+        (:mod:`frictionfit.fit._noise`), to which emcee's draws are carried.
     item_of, motion_of : ndarray or None
         For :meth:`per_motion`'s result: per row, the row of the whole fit it refits and
         the motion's number in it.
@@ -75,6 +80,7 @@ class MeasurementFit(FitResult):
     noise_sd: np.ndarray | None = field(default=None, repr=False)
     noise_rho: np.ndarray | None = field(default=None, repr=False)
     held_cov: list | None = field(default=None, repr=False)
+    density_cov: list | None = field(default=None, repr=False)
     item_of: np.ndarray | None = field(default=None, repr=False)
     motion_of: np.ndarray | None = field(default=None, repr=False)
 
@@ -84,7 +90,7 @@ class MeasurementFit(FitResult):
     @property
     def noise_var(self) -> np.ndarray:
         """Per row, the long-run variance of its noise (N^2): the variance per weighted
-        block residual of the log posterior whose curvature is :attr:`cov`."""
+        block residual of the log density whose curvature is :attr:`density_cov`."""
         from frictionfit.fit._noise import long_run_variance
 
         return long_run_variance(self.noise_sd, self.noise_rho)

@@ -3,8 +3,9 @@
 :func:`sample_posterior` (in :mod:`~frictionfit.uncertainty.engine`) returns a
 :class:`Posterior` per trial of a :class:`~frictionfit.fit.FitResult`;
 :func:`whole_fit_posterior` (in :mod:`~frictionfit.uncertainty.measurement`) does the
-same for a whole fit (:class:`~frictionfit.fit.MeasurementFit`); both evaluate the one
-AR(1) likelihood of :mod:`frictionfit.fit._noise`.
+same for a whole fit (:class:`~frictionfit.fit.MeasurementFit`, its covariance the
+sandwich around its optimum); both evaluate the one AR(1) likelihood of
+:mod:`frictionfit.fit._noise`.
 """
 
 from frictionfit.uncertainty.engine import AUTO_MAX_COND as AUTO_MAX_COND

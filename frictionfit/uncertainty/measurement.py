@@ -8,8 +8,13 @@ The density is the fit's own, the one likelihood's long-run form for whole fits
 (:mod:`frictionfit.fit._noise`): its residual (weighted block residuals, then the model's
 prior rows scaled by the recording's noise sd) over the long-run variance of the AR(1)
 noise the fit estimated at its optimum (``MeasurementFit.noise_var``). Its mode is the
-fit's optimum and its Gauss-Newton covariance is ``MeasurementFit.cov``, so Laplace is
-exactly its Gaussian approximation.
+fit's optimum and its Gauss-Newton covariance ``MeasurementFit.density_cov``. The fit's
+covariance ``MeasurementFit.cov`` is the sandwich around that optimum, which takes each
+parameter's own share of the residuals' correlation; both methods report it: Laplace is
+its Gaussian, and emcee's draws ``v`` are carried to it by the affine map
+``u_hat + M (v - u_hat)``, ``M density_cov M^T = cov`` (the curvature adjustment of
+Chandler & Bate 2007: the density sampled is the long-run one with its coordinates
+stretched about its mode).
 
 - ``"laplace"``: draws from ``N(u_hat, cov)`` over the free parameters in the fit's
   unconstrained coordinates, mapped to physical units; quantiles and sd of the draws.
@@ -21,7 +26,7 @@ exactly its Gaussian approximation.
   started from a Gauss-Newton mode and covariance in ``u``, each recording run to >=
   ``min_tau_multiple`` integrated autocorrelation times with its walkers agreeing,
   R-hat <= 1.01), the density evaluated on the host by the model's compiled loop, every
-  walker of a step in one call.
+  walker of a step in one call; its chain statistics are the sampled density's.
 - ``"auto"``: Laplace, and emcee for the rows the per-motion policy distrusts (fit not
   ``CONVERGED``, a parameter "at bound" or "singular", condition number above
   :data:`~frictionfit.uncertainty.AUTO_MAX_COND`, a non-Gaussian profile).
@@ -163,9 +168,10 @@ def whole_fit_posterior(
     Returns
     -------
     Posterior
-        One entry per row (physical units); ``chains[i]`` holds emcee's chain in the fit's
-        unconstrained coordinates of every parameter (fixed and held ones constant; the
-        held values' spread is in the quantiles and sd, not in the chain).
+        One entry per row (physical units); ``chains[i]`` holds emcee's chain carried to the
+        fit's covariance, in the fit's unconstrained coordinates of every parameter (fixed
+        and held ones constant; the held values' spread is in the quantiles and sd, not in
+        the chain).
 
     Examples
     --------
@@ -252,7 +258,8 @@ def _sample_group(fit: MeasurementFit, model: MeasurementModel, free: tuple[int,
         data = stack_items([fit.items[i] for i in rows], u_hat)
         s2 = np.asarray(fit.noise_var[rows])
     if method == "auto":
-        dev = _profile_disagreement(model, free, data, s2, mode, cov)
+        dev = _profile_disagreement(model, free, data, s2, mode,
+                                    np.stack([_density_cov(fit, i) for i in rows]))
         reasons = [auto_reason(fit, i, fit.cond[i], dev[k]) for k, i in enumerate(rows)]
     else:
         reasons = [method] * rows.size
@@ -266,7 +273,10 @@ def _sample_group(fit: MeasurementFit, model: MeasurementModel, free: tuple[int,
     sel = np.flatnonzero(use_emcee)
     if sel.size:
         held = [_held_cov(fit, i) for i in rows]
-        _sample_emcee(model, free, data, s2, u_hat, held, sel, rows, out, emcee_kw, rng)
+        maps = [_sandwich_map(_density_cov(fit, i), fit.cov[i] - held[k])
+                for k, i in enumerate(rows)]
+        _sample_emcee(model, free, data, s2, u_hat, (maps, held), sel, rows, out, emcee_kw,
+                      rng)
 
 
 def _held_cov(fit: MeasurementFit, i: int) -> np.ndarray:
@@ -275,6 +285,30 @@ def _held_cov(fit: MeasurementFit, i: int) -> np.ndarray:
     p = len(fit.free_names(i))
     held = None if fit.held_cov is None else fit.held_cov[i]
     return np.zeros((p, p)) if held is None else np.asarray(held)
+
+
+def _density_cov(fit: MeasurementFit, i: int) -> np.ndarray:
+    """Row ``i``'s :attr:`~frictionfit.fit.MeasurementFit.density_cov` (``cov`` less the
+    held share for a fit that does not record it)."""
+    if fit.density_cov is None or fit.density_cov[i] is None:
+        return np.asarray(fit.cov[i]) - _held_cov(fit, i)
+    return np.asarray(fit.density_cov[i])
+
+
+def _root(cov: np.ndarray, power: float) -> tuple[np.ndarray, np.ndarray]:
+    """``cov^power`` of a symmetric semidefinite ``cov`` on its range, and the projector on
+    its null space."""
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    keep = w > 1e-13 * max(w.max(initial=0.0), 1e-300)
+    return (v * np.where(keep, w, 1.0) ** power * keep) @ v.T, (v * ~keep) @ v.T
+
+
+def _sandwich_map(density_cov: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``M`` with ``M density_cov M^T = cov`` on ``density_cov``'s range, ``cov^(1/2)
+    density_cov^(-1/2)`` (symmetric roots), and the identity on its null space (a
+    parameter the density does not curve, such as one on its bound, keeps its draws)."""
+    inverse_root, null = _root(density_cov, -0.5)
+    return _root(cov, 0.5)[0] @ inverse_root + null
 
 
 def _store_laplace(fit: MeasurementFit, model, i: int, draws: np.ndarray, out: dict) -> None:
@@ -349,6 +383,16 @@ def _proposal_start(model: MeasurementModel, free: tuple[int, ...], u_free: np.n
     return mode, covs
 
 
+def _carried(chain: ChainResult, free_l: list[int], centre: np.ndarray,
+             sandwich_map: np.ndarray) -> ChainResult:
+    """``chain`` with each draw ``v`` of the free parameters carried to the fit's covariance:
+    ``centre + sandwich_map (v - centre)`` (an affine map: a chain of the adjusted density,
+    its statistics the sampled one's)."""
+    samples = chain.samples.copy()
+    samples[..., free_l] = centre + (samples[..., free_l] - centre) @ sandwich_map.T
+    return replace(chain, samples=samples)
+
+
 def _with_held_spread(chain: ChainResult, free_l: list[int], held_cov: np.ndarray,
                       rng: np.random.Generator) -> ChainResult:
     """``chain`` with each draw of the free parameters shifted by an independent draw of
@@ -364,12 +408,15 @@ def _with_held_spread(chain: ChainResult, free_l: list[int], held_cov: np.ndarra
     return replace(chain, samples=samples)
 
 
-def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, held_cov, sel,
-                  rows, out, kw: dict, rng: np.random.Generator) -> None:
+def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, spread: tuple,
+                  sel, rows, out, kw: dict, rng: np.random.Generator) -> None:
     """emcee for the group's rows ``sel`` in the fit's unconstrained coordinates (the density
     flat on the bounds of the sampling coordinates, times the logistic Jacobian), started
     from :func:`_proposal_start` (the pilot stages refit the proposal); each row's summary
-    widened by its ``held_cov`` (:func:`_with_held_spread`)."""
+    taken of its draws carried to the fit's covariance (:func:`_carried`; the chain kept so)
+    and widened by its held share (:func:`_with_held_spread`); ``spread``: per row of the
+    group, the maps and ``held_cov``."""
+    maps, held_cov = spread
     free_l = list(free)
     sub = data.take(sel)
     centre, covs = _proposal_start(model, free, u_hat[sel][:, free_l], sub, s2[sel])
@@ -389,5 +436,6 @@ def _sample_emcee(model, free, data: WholeFitData, s2: np.ndarray, u_hat, held_c
             full_stat = np.full(model.n_params, np.nan)
             full_stat[free_l] = getattr(chain, key)
             setattr(chain, key, full_stat)
+        chain = _carried(chain, free_l, u_hat[k, free_l], maps[k])
         store_chain(model, i, _with_held_spread(chain, free_l, held_cov[k], rng), out)
         out["chains"][i] = chain
