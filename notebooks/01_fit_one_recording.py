@@ -239,28 +239,27 @@ display(Image(filename=FIGURES / "corner.png"))
 # N/mm and its friction parameters singular. The three `relaxation` fits are off in the other law
 # parameters too: `f_kin` 0.68-0.79 N (true 0.56-0.59), `relax_frac` 0.27-0.39 (0.14), `tau` 5-9 ms
 # (50 ms). Fitted whole (`relaxation2`), with each movement's onset and duration from the motor's
-# reads, the same recording gives `k` 41 +/- 32 N/mm (true 38), `f_kin` 0.592 N (0.588),
+# reads, the same recording gives `k` 41 +/- 5.4 N/stroke (true 38), `f_kin` 0.592 N (0.588),
 # `f_static_excess` 0.275 N (0.276), `tau` 49 ms (50 ms) and `relax_frac` 0.15 (0.14), at R^2 0.9994
-# over eight fitted strokes; the held force it derives, 0.483 +/- 0.003 N, is determined far better
-# than any of the parameters that make it up. The kinetic level falls by `wear` 0.0036 +/- 0.0014
-# per mm of travel (the simulator wears it by 1 % per motion, about 0.005 per mm). The slow branch
-# comes out at the simulator's second branch, `relax_frac2` 0.16 +/- 0.09 and `tau2` 0.87 +/- 0.72 s
-# (0.15, 0.86 s), but the relaxation is not pinned down: neither fraction is two standard errors
-# from 0, so both times (`tau`, `tau2`) are flagged, and `relax_frac2` trades off with `tau2`
-# (correlation 0.98), `relax_frac` with the sensor's leak (0.96).
+# over eight fitted strokes; the held force it derives, 0.483 +/- 0.004 N, is determined far better
+# than any of the parameters that make it up. The kinetic level falls by `wear` 0.0036 +/- 0.0023
+# per stroke of travel (the simulator wears it by 1 % per motion). The slow branch comes out at the
+# simulator's second branch, `relax_frac2` 0.16 +/- 0.07 and `tau2` 0.87 +/- 0.60 s (0.15, 0.86 s),
+# and trades with it (correlation 0.98); `relax_frac` trades with the sensor's leak (0.94).
 # This paper contact is stiff: it loads within a few milliseconds, during the motor's acceleration,
-# where `k` trades off with the acceleration share (correlation 0.99); the wide stderr of `k` is
-# honest: the loading lasts a few samples. The reads give the movements' durations within 1.0 % of
-# the truth and the acceleration share 0.08 (the simulated rig's 0.07). Without the reads, the
-# durations found in the force are up to 26 % short and the fit does not find the stiffness, and
-# says so: `k` 70 +/- 80 N/mm and the acceleration share 0.28 +/- 0.36, each with a stderr above its
-# value (flagged); `f_kin` 0.646 +/- 0.026 N and `relax_frac` 0.32 +/- 0.08 are more than 2 standard
-# errors from the truth without a flag: a recording without reads does not measure the stiffness of
-# a contact this stiff. Holding the motor's profile at the day's values does (the four sample
-# recordings fitted together with `rig="session"`): `k` 37.3 +/- 3.6 N/mm with the reads and
-# 37.9 +/- 3.4 without (true 37.9), `f_kin` 0.595 +/- 0.017 N without the reads, every other law
-# parameter within its standard error of the truth. Where the day's other recordings pin the
-# motor's profile, the stiff contact's loading is measured without the reads. The softer
+# where `k` trades off with the acceleration share (correlation 0.99); the stderr of `k` (13 %) is
+# its share of that ridge. The reads give the movements' durations within 1.0 % of the truth and the
+# acceleration share 0.08 (the simulated rig's 0.07). Without the reads, the durations found in the
+# force are up to 26 % short and the fit does not find the stiffness: `k` 70 +/- 23 N/stroke and the
+# acceleration share 0.28 +/- 0.083, `f_kin` 0.646 +/- 0.0092 N and `relax_frac` 0.32 +/- 0.033,
+# each several standard errors from the truth and none flagged. The standard errors measure the
+# noise of a fit whose movements are timed right; a timing this far off is a wrong model, which they
+# do not see: a recording without reads does not measure the stiffness of a contact this stiff, and
+# its intervals there are not to be trusted. Holding the motor's profile at the day's values does
+# measure it (the four sample recordings fitted together with `rig="session"`): `k` 37.3 +/- 2.2
+# with the reads and 37.9 +/- 1.9 without (true 37.9), `f_kin` 0.595 +/- 0.01 N without the reads,
+# every other law parameter within its standard error of the truth. Where the day's other recordings
+# pin the motor's profile, the stiff contact's loading is measured without the reads. The softer
 # materials of the library come out within a few per cent (notebook 02). The
 # per-motion posterior (last section) shows the same ridge as a wide, skewed `k` distribution that
 # emcee does not finish exploring in 2000 steps.
