@@ -45,6 +45,7 @@ from frictionfit.recording import Recording
 __all__ = [
     "CalibratedPipeline",
     "CalibrationWarning",
+    "ECE_BINS",
     "SPLITS",
     "accuracy_at_coverage",
     "calibrated_ece",
@@ -58,6 +59,8 @@ __all__ = [
 
 #: Inner splits of :class:`CalibratedPipeline` (``split``).
 SPLITS = ("stratified", "groups")
+#: Equal-width confidence bins of the reliability table and the ECE.
+ECE_BINS = 15
 #: Fewest training recordings of a class for calibrated probabilities: with fewer, an
 #: inner pipeline learns a class from one recording, its held-out probabilities are flat,
 #: and the calibrator flattens every call to uniform (5 simulated classes, 3 recordings
@@ -307,7 +310,7 @@ def _bin_of(confidence: np.ndarray, n_bins: int) -> np.ndarray:
     return np.clip(np.digitize(confidence, edges[1:-1], right=True), 0, n_bins - 1)
 
 
-def reliability_table(confidence, correct, n_bins: int = 15) -> pd.DataFrame:
+def reliability_table(confidence, correct, n_bins: int = ECE_BINS) -> pd.DataFrame:
     """Equal-width bins of the top-class probability: ``lo, hi, n, confidence, accuracy``."""
     confidence, correct = np.asarray(confidence, float), np.asarray(correct, float)
     edges = np.linspace(0.0, 1.0, n_bins + 1)
@@ -321,7 +324,7 @@ def reliability_table(confidence, correct, n_bins: int = 15) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def expected_calibration_error(confidence, correct, n_bins: int = 15) -> float:
+def expected_calibration_error(confidence, correct, n_bins: int = ECE_BINS) -> float:
     """ECE: the count-weighted mean of ``|accuracy - confidence|`` over equal-width bins."""
     table = reliability_table(confidence, correct, n_bins)
     used = table[table["n"] > 0]
@@ -329,7 +332,7 @@ def expected_calibration_error(confidence, correct, n_bins: int = 15) -> float:
                  / max(used["n"].sum(), 1))
 
 
-def calibrated_ece(confidence, n_bins: int = 15, n_draws: int = 4000,
+def calibrated_ece(confidence, n_bins: int = ECE_BINS, n_draws: int = 4000,
                    seed: int = 0) -> tuple[float, float]:
     """The ECE that a perfectly calibrated classifier shows at these top-class probabilities:
     its median and 95th percentile over ``n_draws`` simulated outcomes, each call right with
@@ -363,7 +366,7 @@ def accuracy_at_coverage(confidence, correct, coverage: float = 0.9) -> float:
     return float(curve["accuracy"].iloc[n - 1])
 
 
-def plot_reliability(confidence, correct, path, title: str = "", n_bins: int = 15) -> None:
+def plot_reliability(confidence, correct, path, title: str = "", n_bins: int = ECE_BINS) -> None:
     """PNG: the reliability diagram (accuracy against confidence per bin, with counts) and
     the accuracy against coverage."""
     from frictionfit._optional import pyplot

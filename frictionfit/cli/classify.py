@@ -266,7 +266,7 @@ def _say_scores(table, abstain: float) -> None:
     beside a calibrated classifier's on as many (with probabilities), then the accuracy."""
     import numpy as np
 
-    from frictionfit.calibration import calibrated_ece, expected_calibration_error
+    from frictionfit.calibration import ECE_BINS, calibrated_ece, expected_calibration_error
 
     decided = (table["predicted"].astype(str) != "abstain").to_numpy()
     right = (table["true"].astype(str) == table["predicted"].astype(str)).to_numpy()[decided]
@@ -277,7 +277,7 @@ def _say_scores(table, abstain: float) -> None:
     if "probability" in table and right.size:
         conf = table["probability"].to_numpy()[decided]
         ece, (median, high) = expected_calibration_error(conf, right), calibrated_ece(conf)
-        typer.echo(f"expected calibration error (15 bins): {ece:.3f}; a calibrated "
+        typer.echo(f"expected calibration error ({ECE_BINS} bins): {ece:.3f}; a calibrated "
                    f"classifier's at these probabilities on {right.size} recordings: "
                    f"{median:.3f} (95 %: {high:.3f})")
     typer.echo(f"accuracy: {float(np.mean(right)) if right.size else 0.0:.3f}")
