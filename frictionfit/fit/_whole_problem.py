@@ -174,7 +174,7 @@ def residuals_at(model: MeasurementModel, free: tuple[int, ...], u_free: np.ndar
     return map_chunks(_residuals_fn(model, free), (u_free, data), RESIDUAL_CHUNK)
 
 
-#: Central-difference step of the scores' Jacobian, in each free parameter's ``u``.
+#: Forward-difference step of the scores' Jacobian, in each free parameter's ``u``.
 SCORE_STEP = 1e-6
 
 
@@ -182,22 +182,23 @@ def score_covariances(model: MeasurementModel, free: tuple[int, ...], u_free: np
                       data: WholeFitData, resid: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """Per item ``(q, q)``: the long-run covariance of the blocks' scores ``J_t r_t``
     (:func:`~frictionfit.fit._noise.long_run_covariance`; ``J_t`` the weighted block's
-    Jacobian row over the free parameters at ``u_free`` by central differences of step
-    :data:`SCORE_STEP` through the residuals' own loop, ``r_t`` its residual ``resid``, N;
+    Jacobian row over the free parameters at ``u_free`` by forward differences of step
+    :data:`SCORE_STEP` from ``resid`` through the residuals' own loop, ``r_t`` its residual
+    ``resid`` at ``u_free``, N;
     ``rho`` the residuals' lag-one coefficient), in chunks of :data:`RESIDUAL_CHUNK`
     items."""
     residuals = _residuals_fn(model, free)
     q = u_free.shape[1]
-    steps = SCORE_STEP * np.concatenate([np.eye(q), -np.eye(q)])  # (2q, q)
+    steps = SCORE_STEP * np.eye(q)
 
     def chunk(u, d, r, rh):
         u = np.asarray(u)
         points = (u[:, None, :] + steps).reshape(-1, q)
-        rows = np.repeat(np.arange(len(u)), 2 * q)
+        rows = np.repeat(np.arange(len(u)), q)
         moved = np.asarray(residuals(points, jax.tree_util.tree_map(lambda a: a[rows], d)))
-        moved = moved.reshape(len(u), 2, q, -1)
-        jac = np.moveaxis(moved[:, 0] - moved[:, 1], 1, 2) / (2 * SCORE_STEP)  # (m, N, q)
-        return long_run_covariance(jac * np.asarray(r)[..., None], np.asarray(d.weight) > 0,
+        r = np.asarray(r)
+        jac = np.moveaxis(moved.reshape(len(u), q, -1) - r[:, None], 1, 2) / SCORE_STEP
+        return long_run_covariance(jac * r[..., None], np.asarray(d.weight) > 0,
                                    np.asarray(rh))
 
     return map_chunks(chunk, (u_free, data, resid, rho), RESIDUAL_CHUNK)
