@@ -169,9 +169,9 @@ def test_ar1_deviance_is_unit_free_and_whitens_correlated_residuals():
     assert np.all(np.isfinite(ar1_deviance(np.where(gappy, r, 0.0), gappy)))
 
 
-def test_shape_of_an_unseen_effect_is_flagged():
-    # tau only shapes the relaxation: when relax_frac is not told apart from 0, tau is
-    # not identifiable, however small its own stderr (tau_below_sample, gallery seed 1).
+def _unseen_relaxation():
+    """Statistics of two ``relaxation`` trials with a 1 % relaxation, unseen in the first
+    (its ``J^T J`` entry near 0) and well determined in the second; the model and ``u``."""
     from frictionfit.fit._stats import statistics
     from frictionfit.models import PARAMS, get_model
 
@@ -182,7 +182,13 @@ def test_shape_of_an_unseen_effect_is_flagged():
     jtj = np.stack([np.eye(len(names)) * 1e4] * 2)
     jtj[0, names.index("relax_frac"), names.index("relax_frac")] = 1e-6  # relaxation unseen
     mask = np.ones((2, 100), dtype=bool)
-    stats = statistics(model, u, np.full((2, 100), 0.01), jtj, mask)
+    return statistics(model, u, np.full((2, 100), 0.01), jtj, mask), model, u
+
+
+def test_shape_of_an_unseen_effect_is_flagged():
+    # tau only shapes the relaxation: when relax_frac is not told apart from 0, tau is
+    # not identifiable, however small its own stderr (tau_below_sample, gallery seed 1).
+    stats, _, _ = _unseen_relaxation()
     assert stats["flags"][0]["tau"].startswith("relax_frac not distinguishable")
     assert "tau" not in stats["flags"][1] and "relax_frac" not in stats["flags"][1]
 
@@ -254,17 +260,10 @@ def test_auto_selection_picks_the_generating_member():
 def test_a_new_covariance_re_flags_what_depends_on_the_standard_errors():
     # the flags a covariance sets ("stderr > value", a shape whose effect is not told from
     # none) follow it both ways; the others ("at bound", trade-offs) stay
-    from frictionfit.fit._stats import WIDER, set_covariance, statistics
-    from frictionfit.models import PARAMS, get_model
+    from frictionfit.fit._stats import WIDER, set_covariance
 
-    model = get_model("relaxation")
+    stats, model, u = _unseen_relaxation()
     names = model.param_names
-    u = np.array([[PARAMS[n].to_unconstrained(PARAMS[n].default) for n in names]] * 2)
-    u[:, names.index("relax_frac")] = PARAMS["relax_frac"].to_unconstrained(0.01)
-    jtj = np.stack([np.eye(len(names)) * 1e4] * 2)
-    jtj[0, names.index("relax_frac"), names.index("relax_frac")] = 1e-6  # relaxation unseen
-    mask = np.ones((2, 100), dtype=bool)
-    stats = statistics(model, u, np.full((2, 100), 0.01), jtj, mask)
     assert stats["flags"][0]["tau"].startswith("relax_frac not distinguishable")
     tight, loose = np.eye(len(names)) * 1e-8, np.eye(len(names)) * 1e4
     set_covariance(model, u, stats, tuple(range(len(names))), np.stack([tight, loose]))
