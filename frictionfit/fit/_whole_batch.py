@@ -130,9 +130,7 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
     density_cov = stats["cov"].copy()
     held_cov = (np.zeros_like(density_cov) if held_cov is None
                 else np.asarray(held_cov, dtype=np.float64))
-    finite = np.all(np.isfinite(jtj), axis=(1, 2))
-    bread = np.full_like(jtj, np.nan)
-    bread[finite] = np.linalg.pinv(jtj[finite], rcond=1e-13, hermitian=True)
+    bread = density_cov / s2[:, None, None]  # pinv(J^T J); NaN where not computed
     meat = score_covariances(model, free, u[:, free], data, resid, rho)
     set_covariance(model, u, stats, free, bread @ meat @ bread + held_cov)
     w2 = data.weight**2
