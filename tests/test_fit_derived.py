@@ -104,6 +104,24 @@ def test_static_level_carries_the_covariance_of_its_two_parts(recordings):
         assert se < np.hypot(res.stderr["f_kin"][i], res.stderr["f_static_excess"][i])
 
 
+def test_joint_covariance_of_parameters_and_derived_quantities(recordings):
+    """``quantity_cov``: its diagonal is the reported stderrs squared, and ``f_static``
+    covaries as the sum of its two parts does (each from its own gradient)."""
+    items = [measurement_data(r, CHANNEL) for r in recordings]
+    res = fit_recordings(items, model="relaxation2", progress=False)
+    names = ["k", "f_kin", "f_static_excess", "f_static", "f_held", "slip_noise", "leak"]
+    for i in range(res.n_trials):
+        cov = res.quantity_cov(i, names)
+        se = {**res.stderrs(i), **{n: s for n, (_, s) in res.derived[i].items()}}
+        np.testing.assert_allclose(np.sqrt(np.diag(cov)), [se[n] for n in names], rtol=1e-6)
+        parts = cov[1] + cov[2]  # cov(f_kin + f_static_excess, each quantity)
+        np.testing.assert_allclose(cov[3], parts, rtol=1e-4, atol=1e-9 * np.abs(cov).max())
+        assert np.all(cov[5, :5] == 0) and cov[5, 5] > 0
+        assert np.all(np.linalg.eigvalsh(cov) > -1e-12 * np.abs(cov).max())
+    with pytest.raises(KeyError, match="neither a parameter"):
+        res.quantity_cov(0, ["k", "nonsense"])
+
+
 def test_slip_noise_measures_shaking_the_smooth_law_cannot_follow(recordings):
     t = np.arange(0.0, SLIP_S, 1e-3)
     amplitude = 0.1  # N

@@ -144,6 +144,8 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
                                  cond[i], mask[i], saturated=items[i].clipped > 0,
                                  flags=stats["flags"][i])
                        for i in range(len(items))])
+    derived, derived_grad = (derived_quantities(model, free, u, stats["cov"], resid, items,
+                                                data.direction) if final else (None, None))
     return MeasurementFit(
         model=[model.name] * len(items), values=param_table(stats["values"]),
         stderr=param_table(stats["stderr"]), flags=stats["flags"],
@@ -152,8 +154,7 @@ def _result(model: MeasurementModel, items: Sequence[MeasurementData], data: Who
         ndata=stats["ndata"], nvarys=stats["nvarys"], u=list(u), direction=data.direction,
         init=[_physical_init(model, d.guess) for d in items], correl=stats["correl"],
         cov=list(stats["cov"]), stroke_mm=model.stroke_mm, priors=_prior_dict(model),
-        derived=(derived_quantities(model, free, u, stats["cov"], resid, items,
-                                    data.direction) if final else None),
+        derived=derived, derived_grad=derived_grad,
         items=list(items), fitted_models=[model] * len(items), noise_sd=sigma, noise_rho=rho,
         held_cov=list(held_cov), density_cov=list(density_cov))
 

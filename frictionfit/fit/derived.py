@@ -44,12 +44,15 @@ from frictionfit.models import MeasurementModel
 from frictionfit.models.measurement import jit_host_loop
 from frictionfit.segmentation import moving_average
 
-__all__ = ["DERIVED", "HOLD_S", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S", "derived_quantities",
-           "slip_noise"]
+__all__ = ["DERIVED", "HOLD_S", "LEVELS", "ONSET_SAMPLES", "SLIP_BAND", "SLIP_S",
+           "derived_quantities", "slip_noise"]
 
 #: Name -> unit of the derived quantities.
 DERIVED = {"f_held": "N", "f_peak": "N", "onset_rate": "N/s", "f_static": "N",
            "slip_noise": "N"}
+#: The derived quantities that follow from the parameters (``slip_noise`` is read off the
+#: residuals), in the order of their gradients (:func:`derived_quantities`).
+LEVELS = ("f_held", "f_peak", "onset_rate", "f_static")
 #: Hold (s) between the commands of the drive on which ``f_held`` is read (the protocol's).
 HOLD_S = 1.0
 #: The span (ms) of the rise in ``onset_rate``: the measured onset rate's filter.
@@ -120,8 +123,11 @@ def slip_noise(resid: np.ndarray, t: np.ndarray, weight: np.ndarray, commands: n
 
 def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.ndarray,
                        cov: np.ndarray, resid: np.ndarray, items: Sequence,
-                       direction: np.ndarray) -> list[dict[str, tuple[float, float]]]:
-    """Per item, name -> ``(value, stderr)`` of :data:`DERIVED` (module notes).
+                       direction: np.ndarray) -> tuple[list[dict[str, tuple[float, float]]],
+                                                        list[np.ndarray]]:
+    """Per item, name -> ``(value, stderr)`` of :data:`DERIVED` (module notes), and the
+    gradients of the :data:`LEVELS` (rows, as reported: of their size) with respect to the
+    free unconstrained coordinates (columns), from which their joint covariance follows.
 
     ``u``: full unconstrained optima; ``cov``: their covariance over ``free``; ``resid``: the
     data residuals ``weight (prediction - y)`` (padded rows); ``items``: the
@@ -129,15 +135,15 @@ def derived_quantities(model: MeasurementModel, free: tuple[int, ...], u: np.nda
     """
     value, grad = map_chunks(_levels_fn(model), (jnp.asarray(u), jnp.asarray(direction)),
                              CHUNK)
-    grad = grad[:, :, list(free)]
+    value, grad = np.asarray(value), np.asarray(grad)[:, :, list(free)]
+    grad = grad * np.where(value < 0, -1.0, 1.0)[:, :, None]  # f_held, f_peak, onset: sizes
+    value = np.abs(value)
     var = np.einsum("nki,nij,nkj->nk", grad, np.nan_to_num(cov), grad)
     var = np.where(np.all(np.isfinite(cov), axis=(1, 2))[:, None], var, np.nan)
     se = np.sqrt(np.maximum(var, 0.0))
     out = []
     for i, d in enumerate(items):
         slip = slip_noise(resid[i, : d.y.size], d.t, d.weight, d.commands, d.noise)
-        out.append({"f_held": (float(abs(value[i, 0])), float(se[i, 0])),
-                    "f_peak": (float(abs(value[i, 1])), float(se[i, 1])),
-                    "onset_rate": (float(abs(value[i, 2])), float(se[i, 2])),
-                    "f_static": (float(value[i, 3]), float(se[i, 3])), "slip_noise": slip})
-    return out
+        out.append({name: (float(value[i, q]), float(se[i, q])) for q, name in enumerate(LEVELS)}
+                   | {"slip_noise": slip})
+    return out, list(grad)

@@ -11,6 +11,7 @@ posteriors need nothing passed again.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,6 +70,10 @@ class MeasurementFit(FitResult):
         samples (``-|residual|^2 / (2 noise_var)``, at the held values; same coordinates):
         ``cov`` less ``held_cov`` is the sandwich around the same optimum
         (:mod:`frictionfit.fit._noise`), to which emcee's draws are carried.
+    derived_grad : list of ndarray or None
+        Per row, the gradients of the derived levels (:data:`~frictionfit.fit.derived.LEVELS`,
+        rows) with respect to the free unconstrained coordinates (columns, those of ``cov``):
+        what :meth:`quantity_cov` needs beyond ``cov``.
     item_of, motion_of : ndarray or None
         For :meth:`per_motion`'s result: per row, the row of the whole fit it refits and
         the motion's number in it.
@@ -81,6 +86,7 @@ class MeasurementFit(FitResult):
     noise_rho: np.ndarray | None = field(default=None, repr=False)
     held_cov: list | None = field(default=None, repr=False)
     density_cov: list | None = field(default=None, repr=False)
+    derived_grad: list | None = field(default=None, repr=False)
     item_of: np.ndarray | None = field(default=None, repr=False)
     motion_of: np.ndarray | None = field(default=None, repr=False)
 
@@ -123,6 +129,38 @@ class MeasurementFit(FitResult):
         return np.asarray(self.member(i).predict(
             jnp.asarray(self.u[i]), jnp.asarray(t), jnp.asarray(d.commands),
             jnp.asarray(d.signs), d.direction, stretch=jnp.asarray(d.stretch)))
+
+    def quantity_cov(self, i: int, names: Sequence[str]) -> np.ndarray:
+        """Joint covariance of row ``i``'s named quantities, by the delta method from
+        ``cov[i]``: parameters (in the units of :attr:`values`; a held one's row is 0) and
+        derived quantities (:data:`~frictionfit.fit.derived.DERIVED`, their units).
+        ``slip_noise`` is read off the residuals, not the parameters: its variance is its
+        stderr squared, its covariances 0."""
+        from frictionfit.fit._numerics import fd_slope
+        from frictionfit.fit.derived import LEVELS
+
+        model = self.member(i)
+        free = [model.param_names.index(n) for n in self.free_names(i)]
+        u, cov = np.asarray(self.u[i]), np.asarray(self.cov[i])
+        grad = np.zeros((len(names), len(free)))
+        for a, name in enumerate(names):
+            if name in LEVELS:
+                if self.derived_grad is None:
+                    raise ValueError(f"{name}: this fit computed no derived quantities")
+                grad[a] = self.derived_grad[i][LEVELS.index(name)]
+            elif name in model.param_names:
+                j = model.param_names.index(name)
+                if j in free:
+                    slope = fd_slope(model.params[j].to_physical, u[j:j + 1])
+                    grad[a, free.index(j)] = slope[0]
+            elif name != "slip_noise":
+                raise KeyError(f"{name!r} is neither a parameter of {model.name!r} nor derived")
+        out = grad @ cov @ grad.T
+        for a, name in enumerate(names):
+            if name == "slip_noise":
+                out[a, :] = out[:, a] = 0.0
+                out[a, a] = self.derived[i]["slip_noise"][1] ** 2
+        return out
 
     def report(self, i: int = 0, min_correl: float = 0.1) -> str:
         """Row ``i``'s lmfit-style report (:func:`~frictionfit.fit.result.fit_report`)."""
