@@ -211,3 +211,5 @@ def test_fit_trials_takes_the_solver_object():
     assert loose.n_steps.sum() < by_name.n_steps.sum()
     with pytest.raises(FitError, match="or give an optimistix least-squares solver"):
         fit_trials(*args, model="elastic_plastic", solver="newton")
+    with pytest.raises(FitError, match="ftol given beside a solver object"):
+        fit_trials(*args, model="elastic_plastic", solver=same, ftol=1e-3)

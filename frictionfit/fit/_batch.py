@@ -20,7 +20,6 @@ from frictionfit.fit._problem import Problem, jacobian_fn, residual_fn
 from frictionfit.fit._solver_choice import SolverSettings, solver_settings
 from frictionfit.fit._stats import choose, flag_fast_loading, statistics, status_of
 from frictionfit.fit.result import FitResult, param_table
-from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL
 from frictionfit.fit.trials import Trials, as_trials
 from frictionfit.models import FAMILY, PARAMS, get_model
 
@@ -164,8 +163,9 @@ def _tie(fit, model, tie, groups):
 def fit_trials(
     y, t=None, drive_input=None, *, model: str = "auto", direction=None, drive: str = "events",
     solver: str | optx.AbstractLeastSquaresSolver = "lm", max_steps: int = 100,
-    steps_per_round: int = 4, chunk_size: int = 32, rtol: float = DATA_RTOL, atol: float = 1e-8,
-    ftol: float = DATA_FTOL, u0=None, n_starts: int = 1, seed: int = 0, threads: int | None = None,
+    steps_per_round: int = 4, chunk_size: int = 32, rtol: float | None = None,
+    atol: float | None = None, ftol: float | None = None, u0=None, n_starts: int = 1,
+    seed: int = 0, threads: int | None = None,
     fix: Mapping[str, float] | None = None, tie: Sequence[str] = (), groups=None,
     stroke_mm: float = 1.0, priors: Mapping[str, tuple[float, float] | None] | None = None,
 ) -> FitResult:
@@ -189,13 +189,14 @@ def fit_trials(
         +1/-1 per trial; estimated from the out stroke when omitted.
     solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or an optimistix least-squares solver
         ``"lm"``: :class:`BatchedLevenbergMarquardt` (the fastest); the others optimistix's
-        ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``. A solver object brings its own
-        tolerances. Every solver runs in the same refilled pools of slots.
+        ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``. Every solver runs in the same
+        refilled pools of slots.
     max_steps, steps_per_round, chunk_size : int
         Steps per trial; steps per compiled call, between refills; slots per pool (32).
-    rtol, atol, ftol : float
+    rtol, atol, ftol : float, optional
         Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: optimistix's); relative cost
-        decrease (``ftol``, the LM's).
+        decrease (``ftol``, the LM's); default ``DATA_RTOL``, ``DATA_ATOL``, ``DATA_FTOL``.
+        For a named solver only: a solver object brings its own (FitError beside one).
     u0 : array (n_trials, n_params), optional
         Unconstrained starting points (one named model only).
     n_starts, seed : int

@@ -10,11 +10,13 @@ import optimistix as optx
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError
-from frictionfit.fit.solver import BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 
-__all__ = ["SOLVERS", "SolverSettings", "solver_settings"]
+__all__ = ["DATA_ATOL", "SOLVERS", "SolverSettings", "solver_settings"]
 
 SOLVERS = ("lm", "optx-lm", "dogleg", "gauss-newton")
+#: The step tolerance of the optimistix solvers named in :data:`SOLVERS` (their ``atol``).
+DATA_ATOL = 1e-8
 
 
 @dataclass(frozen=True)
@@ -31,8 +33,13 @@ class SolverSettings:
 
 def solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_size,
                     threads) -> SolverSettings:
-    """The solver object and its name: a name from SOLVERS, or an object as given."""
+    """The solver object and its name: a name from SOLVERS with the tolerances given (None:
+    the data defaults), or an object as given (it brings its own: none may be given beside
+    it)."""
     if isinstance(solver, str):
+        rtol = DATA_RTOL if rtol is None else rtol
+        atol = DATA_ATOL if atol is None else atol
+        ftol = DATA_FTOL if ftol is None else ftol
         named = {"lm": lambda: BatchedLevenbergMarquardt(rtol=rtol, ftol=ftol),
                  "optx-lm": lambda: optx.LevenbergMarquardt(rtol=rtol, atol=atol),
                  "dogleg": lambda: optx.Dogleg(rtol=rtol, atol=atol),
@@ -42,6 +49,10 @@ def solver_settings(solver, rtol, atol, ftol, max_steps, steps_per_round, chunk_
                            "optimistix least-squares solver")
         name, solver = solver, named[solver]()
     elif isinstance(solver, optx.AbstractLeastSquaresSolver):
+        given = [n for n, v in (("rtol", rtol), ("atol", atol), ("ftol", ftol)) if v is not None]
+        if given:
+            raise FitError(f"{', '.join(given)} given beside a solver object: give the "
+                           f"tolerances to {type(solver).__name__} itself")
         name = _NAMES.get(type(solver), type(solver).__name__)
     else:
         raise FitError(f"solver must be a name from {SOLVERS} or an optimistix "
