@@ -49,7 +49,8 @@ PARAMS: dict[str, Param] = {
     p.name: p
     for p in (
         Param("offset", "N", -1e6, 1e6, 0.0, "identity", "sensor offset of the channel"),
-        Param("k", "N/mm", 1e-3, 1e4, 5.0, "loglogit", "tangential contact stiffness"),
+        Param("k", "N/mm", 1e-3, 1e4, 5.0, "loglogit",
+              "tangential stiffness of the contact in series with the finger"),
         Param("f_kin", "N", 1e-5, 1e3, 0.5, "loglogit", "kinetic friction level"),
         Param("delay", "s", 0.0, 0.3, 0.02, "logit", "motor latency after the command"),
         Param("ramp", "s", 0.005, 1.0, 0.12, "loglogit", "duration of the finger movement",
