@@ -24,9 +24,10 @@ Five quantities per fitted channel, each with a standard error (``derived`` of a
   off, their sum does not: its standard error by the delta method, with their covariance.
 - ``slip_noise`` (N): the stick-slip intensity, which the smooth law leaves in the residual:
   the RMS of the residual between a ``SLIP_BAND[0]``- and a ``SLIP_BAND[1]``-sample moving
-  average (about 40-110 Hz at 1 kHz) within ``SLIP_S`` after each command of the fitted
-  motions, less the share of the sensor's white noise in that band; the median over the
-  movements, its standard error from their spread. NaN where the movements were not fitted
+  average (about 40-110 Hz at 1 kHz; a band in samples, so 20-55 Hz at 500 Hz: below a
+  50-Hz DAQ low-pass, where a band in hertz would read the filter) within ``SLIP_S`` after
+  each command of the fitted motions, less the share of the sensor's white noise in that
+  band; the median over the movements, its standard error from their spread. NaN where the movements were not fitted
   sample by sample (``decimate > 1``) or too few were clean.
 """
 
