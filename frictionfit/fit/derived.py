@@ -27,8 +27,8 @@ Five quantities per fitted channel, each with a standard error (``derived`` of a
   average (about 40-110 Hz at 1 kHz; a band in samples, so 20-55 Hz at 500 Hz: below a
   50-Hz DAQ low-pass, where a band in hertz would read the filter) within ``SLIP_S`` after
   each command of the fitted motions, less the share of the sensor's white noise in that
-  band; the median over the movements, its standard error from their spread. NaN where the movements were not fitted
-  sample by sample (``decimate > 1``) or too few were clean.
+  band; the median over the movements, its standard error from their spread. NaN where the
+  movements were not fitted sample by sample (``decimate > 1``) or too few were clean.
 """
 
 from __future__ import annotations
