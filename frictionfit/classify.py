@@ -198,7 +198,8 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
 
     Lab sessions differ by sensor offsets and gains, motor positions and material
     state, so every feature shifts and scales from day to day. This wrapper computes
-    ``features`` and z-scores each feature within each value of ``metadata[key]``,
+    ``features`` and z-scores each feature within each value of ``metadata[key]`` (of
+    each rig, ``metadata.rig``, apart),
     using only that session's own (unlabelled) recordings, at training and at
     prediction time alike: a session seen in training keeps its training
     statistics; a new session with at least ``min_group`` recordings in the
@@ -263,7 +264,13 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         return np.stack(normalised)
 
     def _groups(self, X) -> np.ndarray:
-        return np.asarray([r.metadata.get(self.key) for r in X], dtype=object)
+        """Each recording's group: its ``metadata[key]`` within its rig (``metadata.rig``),
+        so that two rigs' sessions numbered alike stay two groups; None without the key."""
+        out = np.empty(len(X), dtype=object)
+        for i, r in enumerate(X):
+            value, rig = r.metadata.get(self.key), r.metadata.get("rig")
+            out[i] = None if value is None else value if rig is None else f"{rig}/{value}"
+        return out
 
     @staticmethod
     def _stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -162,6 +162,21 @@ def test_session_normalisation_removes_a_per_session_offset_and_gain(recordings)
     assert np.ptp(x[c0, j]) < 0.05 < 0.5 < np.ptp(raw)
 
 
+def test_session_normalisation_keeps_two_rigs_sessions_apart(recordings):
+    """Session 1 of rig A and session 1 of rig B (the same materials, another gain and
+    offset) are two days: each is standardised by its own statistics."""
+    def on(rig: str, gain: float, offset: float) -> list[Recording]:
+        return [Recording.from_arrays(gain * r.samples + offset, 1000.0, CHANNELS,
+                                      events=r.events, name=f"{rig}_{r.name}",
+                                      metadata={**r.metadata, "rig": rig})
+                for r in recordings if r.metadata["session"] == 1]
+    both = on("A", 1.0, 0.0) + on("B", 1.7, 0.3)
+    x = SessionNormalised(HandcraftedFeatures(cache=False), min_group=5).fit_transform(both)
+    rigs = np.array([r.metadata["rig"] for r in both])
+    for rig in ("A", "B"):
+        np.testing.assert_allclose(x[rigs == rig].mean(axis=0), 0.0, atol=1e-9)
+
+
 def test_session_normalisation_warns_on_a_small_session(recordings):
     norm = SessionNormalised(HandcraftedFeatures(cache=False), min_group=5).fit(recordings)
     with pytest.warns(UserWarning, match=r"session \['9'\].*fewer than 5 recordings"):

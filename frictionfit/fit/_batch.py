@@ -164,10 +164,10 @@ def fit_trials(
     y, t=None, drive_input=None, *, model: str = "auto", direction=None, drive: str = "events",
     solver: str | optx.AbstractLeastSquaresSolver = "lm", max_steps: int = 100,
     steps_per_round: int = 4, chunk_size: int = 32, rtol: float | None = None,
-    atol: float | None = None, ftol: float | None = None, u0=None, n_starts: int = 1,
-    seed: int = 0, threads: int | None = None,
-    fix: Mapping[str, float] | None = None, tie: Sequence[str] = (), groups=None,
-    stroke_mm: float = 1.0, priors: Mapping[str, tuple[float, float] | None] | None = None,
+    atol: float | None = None, ftol: float | None = None, u0=None, n_starts: int = 1, seed: int = 0,
+    threads: int | None = None, fix: Mapping[str, float] | None = None, tie: Sequence[str] = (),
+    groups=None, stroke_mm: float = 1.0,
+    priors: Mapping[str, tuple[float, float] | None] | None = None,
 ) -> FitResult:
     """Fit a contact model to every trial of a batch.
 
@@ -183,20 +183,18 @@ def fit_trials(
         ``(t_out, t_back)``: command times, s (scalars or per trial), ``drive="events"``;
         or the displacement, mm ``(n_trials, n_samples)``, ``drive="given"``.
     model : str, default "auto"
-        A family member, or ``"auto"``: fit all, keep the smallest within ``BIC_TIE``
-        of the best BIC.
+        A family member, or ``"auto"``: fit all, keep the smallest within ``BIC_TIE`` of the best.
     direction : array (n_trials,), optional
         +1/-1 per trial; estimated from the out stroke when omitted.
     solver : {"lm", "optx-lm", "dogleg", "gauss-newton"} or an optimistix least-squares solver
         ``"lm"``: :class:`BatchedLevenbergMarquardt` (the fastest); the others optimistix's
-        ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``. Every solver runs in the same
-        refilled pools of slots.
+        ``LevenbergMarquardt``, ``Dogleg``, ``GaussNewton``; all in the same refilled pools.
     max_steps, steps_per_round, chunk_size : int
         Steps per trial; steps per compiled call, between refills; slots per pool (32).
     rtol, atol, ftol : float, optional
-        Step tolerances (``rtol``: the LM's ``xtol``; ``atol``: optimistix's); relative cost
-        decrease (``ftol``, the LM's); default ``DATA_RTOL``, ``DATA_ATOL``, ``DATA_FTOL``.
-        For a named solver only: a solver object brings its own (FitError beside one).
+        A named solver's step tolerances (``rtol``: the LM's ``xtol``; ``atol``: optimistix's)
+        and relative cost decrease (``ftol``); default ``DATA_RTOL``, ``DATA_ATOL``,
+        ``DATA_FTOL``. A solver object brings its own (FitError beside one).
     u0 : array (n_trials, n_params), optional
         Unconstrained starting points (one named model only).
     n_starts, seed : int
