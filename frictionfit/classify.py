@@ -39,7 +39,7 @@ from frictionfit.calibration import (
 )
 from frictionfit.errors import DatasetError
 from frictionfit.features import make_features
-from frictionfit.recording import Recording
+from frictionfit.recording import Recording, within_rig
 from frictionfit.transfer import RigTransfer
 
 __all__ = [
@@ -267,9 +267,7 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
         """Each recording's group: its ``metadata[key]`` within its rig (``metadata.rig``),
         so that two rigs' sessions numbered alike stay two groups; None without the key."""
         out = np.empty(len(X), dtype=object)
-        for i, r in enumerate(X):
-            value, rig = r.metadata.get(self.key), r.metadata.get("rig")
-            out[i] = None if value is None else value if rig is None else f"{rig}/{value}"
+        out[:] = [within_rig(r.metadata, self.key) for r in X]
         return out
 
     @staticmethod

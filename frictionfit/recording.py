@@ -19,7 +19,7 @@ import json
 import math
 import warnings
 import weakref
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -44,6 +44,7 @@ __all__ = [
     "read_recording",
     "recording_paths",
     "validate",
+    "within_rig",
     "write_recording",
 ]
 
@@ -183,6 +184,15 @@ class Problem:
         return f"{chan}{self.detail}"
 
 
+
+def within_rig(metadata: Mapping, key: str = "session") -> Any:
+    """``metadata[key]`` as a group of one rig: prefixed by ``metadata["rig"]`` and ``/``
+    where a rig is named (two rigs' sessions numbered alike are two groups), as given where
+    none is; None where ``key`` is absent."""
+    value, rig = metadata.get(key), metadata.get("rig")
+    return None if value is None else value if rig is None else f"{rig}/{value}"
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A multichannel time series with units, events and metadata.
@@ -294,6 +304,11 @@ class Recording:
     def rig(self) -> Rig:
         """What the sidecar declares about the rig (:class:`Rig`; :data:`RIG_KEYS`)."""
         return Rig.from_metadata(self.metadata, self.name)
+
+    @property
+    def session(self) -> Any:
+        """The recording's session (day) within its rig (:func:`within_rig`), or None."""
+        return within_rig(self.metadata)
 
     @property
     def stroke_mm(self) -> float | None:

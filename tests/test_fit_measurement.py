@@ -422,17 +422,18 @@ def test_session_rig_holds_the_motor_of_each_day(simulated, tmp_path):
     items = [measurement_data(r, "index_x") for r in simulated]
     res = fit_recordings(items, rig="session", progress=False)
     sessions = np.array([d.session for d in items])
+    day = {s: f"{simulated[0].metadata['rig']}/{s}" for s in (1, 2)}  # a session of its rig
     for name in ("ramp", "accel"):
         values = res.values[name].to_numpy()
         for s in (1, 2):
-            assert np.ptp(values[sessions == s]) == 0.0  # one motor profile per day
+            assert np.ptp(values[sessions == day[s]]) == 0.0  # one motor profile per day
         assert all(f[name] == "fixed" for f in res.flags)
     assert not any(f.get("delay") == "fixed" for f in res.flags)  # latency per recording
-    assert np.ptp(res.values["delay"].to_numpy()[sessions == 1]) > 0.0
+    assert np.ptp(res.values["delay"].to_numpy()[sessions == day[1]]) > 0.0
     truth = [measurement_truth(r, "ramp") for r in simulated]
     np.testing.assert_allclose(res.values["ramp"], truth, rtol=0.05)
     # the day's profiles, saved, hold a recording fitted later on its own: the same numbers
-    assert sorted(res.session_rigs) == ["1", "2"]
+    assert sorted(res.session_rigs) == [day[1], day[2]]
     assert all(r.n_fits >= 2 for r in res.session_rigs.values())
     write_session_rigs(res.session_rigs, tmp_path / "rigs.json")
     rigs = read_session_rigs(tmp_path / "rigs.json")
@@ -443,10 +444,23 @@ def test_session_rig_holds_the_motor_of_each_day(simulated, tmp_path):
     for name in ("k", "f_kin"):
         assert later.stderr[name][0] == pytest.approx(res.stderr[name][0], rel=1e-6)
     with pytest.raises(ValueError, match="no motor profile for session"):
-        fit_recordings(items[:1], rig={"7": rigs["1"]})
+        fit_recordings(items[:1], rig={"7": rigs[day[1]]})
     (tmp_path / "bad.json").write_text('{"1": {"ramp": 0.1}}')
     with pytest.raises(ValueError, match="not a file of session motor profiles"):
         read_session_rigs(tmp_path / "bad.json")
+
+
+def test_two_rigs_sessions_numbered_alike_hold_two_motors():
+    from frictionfit.simulation.rigs import rig_for
+
+    recs = [r for rig in ("sim-a", "sim-b")
+            for r in simulate_measurements([(1, c, 1) for c in CLASSES[:2]], seed=2,
+                                           rig=rig_for(rig))]
+    res = fit_recordings([measurement_data(r, "index_x") for r in recs], rig="session",
+                         progress=False)
+    assert sorted(res.session_rigs) == ["sim-a/1", "sim-b/1"]
+    ramp = res.values["ramp"].to_numpy()
+    assert ramp[0] == ramp[1] != ramp[2] == ramp[3]  # sim-b's motor is slower
 
 
 def test_a_held_profile_keeps_its_own_uncertainty(simulated):

@@ -376,3 +376,12 @@ def test_the_lab_datasets_declare_their_strokes(shared):
         path = next((shared / "datasets" / folder).glob("*.json"))
         rec = read_recording(path, on_error="flag")
         assert rec.stroke_mm == stroke and rec.rig.name == folder
+
+
+def test_a_session_is_its_rigs():
+    from frictionfit.recording import within_rig
+
+    assert within_rig({"session": 1, "rig": "lab-B"}) == "lab-B/1"
+    assert within_rig({"session": 1}) == 1
+    assert within_rig({"rig": "lab-B"}) is None
+    assert within_rig({"person": "p3", "rig": "skin"}, "person") == "skin/p3"

@@ -217,7 +217,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 32  # 32: whole fits' standard errors are the sandwich's
+    _version = 33  # 33: a session is its rig's
     _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
     #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).
@@ -286,7 +286,7 @@ class PhysicalFeatures(RecordingFeatures):
             return super()._blocks(recordings, missing)
         sessions: dict[str, list[int]] = {}
         for i in missing:
-            sessions.setdefault(str(recordings[i].metadata.get("session")), []).append(i)
+            sessions.setdefault(str(recordings[i].session), []).append(i)
         return list(sessions.values())
 
     def _stored_names(self) -> list[str]:

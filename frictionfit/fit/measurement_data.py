@@ -35,8 +35,9 @@ class MeasurementData:
     square root of each block's sample count (0: not fitted); ``noise``: the sd (N) of one
     sample; ``commands`` (s) and ``signs`` (+1 out, -1 back) of the ``move`` events;
     ``guess`` the data-driven starting values (physical units), ``direction`` (+1/-1),
-    the recording's ``session`` (metadata; ``None`` when absent) and ``stretch``: each
-    movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored as ones);
+    the recording's ``session`` within its rig (``Recording.session``; ``None``: none) and
+    ``stretch``: each movement's duration over the rig's ``ramp`` (``None``: 1 for all, stored
+    as ones);
     ``motor``: the movements as the motor reported them
     (:func:`~frictionfit.fit.motor.motor_timing`; ``None`` when the recording has no
     position reads), which then set ``commands``, ``stretch`` and the rig's starting values;
@@ -198,7 +199,7 @@ def measurement_data(rec: Recording, channel: str, *, decimate: int = 1, coarse:
                                     _block_edges(t_grid, commands[first:], decimate, coarse))
     noise = float(noise_scale(np.where(ok, y, np.nan)[None], ok[None])[0])
     data = MeasurementData(rec.name, channel, t, y_mean, np.sqrt(count) * (t >= start), noise,
-                           commands, signs, direction, guess, rec.metadata.get("session"),
+                           commands, signs, direction, guess, rec.session,
                            clipped=int(clipped.sum()), stroke_mm=rec.stroke_mm)
     motor = motor_timing(rec, commands, signs)
     return data if motor is None else _driven_by_motor(data, motor)

@@ -7,7 +7,9 @@ latency after a command goes with the serial link and stays per recording. A
 :class:`SessionRig` is that profile, the median over the session's fits with every parameter
 free, with the variance of its error for one recording; ``fit_measurements(rig="session")``
 estimates one per session of its batch and holds it, and ``rig={session: SessionRig}``
-holds profiles estimated before (a recording fitted later in the day, on its own). The held
+holds profiles estimated before (a recording fitted later in the day, on its own). A session
+is named within its rig (:attr:`~frictionfit.recording.Recording.session`: ``"<rig>/<session>"``
+where ``metadata.rig`` is given), so two rigs' days numbered alike are two sessions. The held
 profile's error is carried into every free parameter's covariance (:func:`held_covariance`).
 
 The finger's creep (:data:`CREEP`) is the rig's too: the slow relaxation branch's time
