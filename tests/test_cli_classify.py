@@ -48,7 +48,8 @@ def test_train_then_predict_round_trip(folders, tmp_path):
     assert saved["n_train"] == 24 and saved["frictionfit_version"]
     out = tmp_path / "p.csv"
     # three recordings of a new session are too few to standardise it by itself: said
-    with pytest.warns(UserWarning, match=r"session \['3'\].*fewer than 10 recordings"):
+    with pytest.warns(UserWarning,
+                      match=r"session \['frictionfit-simulator/3'\].*fewer than 10 recordings"):
         result = runner.invoke(app, ["predict", str(model), "--dataset",
                                      f"recordings:{test}", "--out", str(out)])
     assert result.exit_code == 0, result.output
