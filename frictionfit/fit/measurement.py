@@ -319,7 +319,8 @@ def _check_rig(rig: str | Mapping[str, SessionRig], items: Sequence[MeasurementD
         missing = sorted({str(d.session) for d in items} - set(rig))
         if missing:
             raise ValueError(f"no motor profile for session(s) {', '.join(missing)} (the "
-                             f"profiles given are for {', '.join(sorted(rig)) or 'none'})")
+                             f"profiles given are for {', '.join(sorted(rig)) or 'none'}; a "
+                             "session is named within its rig, '<rig>/<session>')")
     if set(SESSION_RIG) & set(fix or {}):
         raise ValueError(f"a session's profile holds {', '.join(SESSION_RIG)}: fix them, or "
                          "leave rig='recording'")
