@@ -23,17 +23,18 @@ over the fitted tangential force, signed) and the lateral stick-slip ``slip_nois
 floored as the rubbing channels'); never the lateral sensor's offset, drift or leak.
 
 **Read off the force** (``measured=True``), per movement phase (``out``, ``back``), from the
-signal after a centred moving average over 9 ms (:data:`FILTER_S`), relative to its
-value ``x0`` at the command (so offset-free): ``rise`` (N, the peak deviation within 0.3 s, signed),
-``static`` (N, the deviation at the end of the relaxation), ``relaxed_frac``
-(1, ``1 - static / rise``: the share of the peak that relaxes; gain-free),
-``t_relax`` (s, from the peak until the deviation has covered 63% of the way to
-its final level: a model-free relaxation time), ``onset_rate`` (N/s, the largest
-slope between the command and the peak: loading stiffness times drive speed) and
-``t_peak`` (s); ``slip_ripple`` (1, the standard deviation of the signal minus its
-25-ms moving average in the 0.25 s after the command, over ``|rise|``: stick-slip
-oscillation) and the normalised relaxation curve ``relax_<ms>ms`` (1, the deviation
-50, 100, 200 and 400 ms after the peak over ``rise``). The ratios are gain-free. The
+signal after a centred moving average over :data:`FILTER_S`, relative to its value ``x0``
+at the command (so offset-free): ``rise`` (N, the peak deviation within :data:`PEAK_S` of
+the command, signed), ``static`` (N, the deviation at the end of the relaxation),
+``relaxed_frac`` (1, ``1 - static / rise``: the share of the peak that relaxes;
+gain-free), ``t_relax`` (s, from the peak until the deviation has covered
+:data:`RELAXED_SHARE` of the way to its final level: a model-free relaxation time),
+``onset_rate`` (N/s, the largest slope between the command and the peak: loading
+stiffness times drive speed) and ``t_peak`` (s); ``slip_ripple`` (1, the standard
+deviation of the signal minus its :data:`RIPPLE_SMOOTH_S` moving average within
+:data:`RIPPLE_S` of the command, over ``|rise|``: stick-slip oscillation) and the
+normalised relaxation curve ``relax_<ms>ms`` (1, the deviation :data:`RELAX_DELAYS` after
+the peak over ``rise``). The ratios are gain-free. The
 relaxation quantities (``relaxed_frac``, ``t_relax``, ``relax_<ms>ms``) are kept only with
 ``relaxation=True``.
 
@@ -108,6 +109,11 @@ _RELAXATION = re.compile(r"^(fit_(relax_frac|tau|drag)(_stderr)?\b"
 RELAX_DELAYS = (0.05, 0.1, 0.2, 0.4)
 #: Window (s) after the command in which the stick-slip ripple is read.
 RIPPLE_S = 0.25
+#: Window (s) after the command in which the peak (``rise``) is read.
+PEAK_S = 0.3
+#: Share of the way from the peak to the final level at which ``t_relax`` is read (about
+#: ``1 - 1/e``: one time constant of an exponential relaxation).
+RELAXED_SHARE = 0.63
 #: Spans (s) of the moving averages: the signal's filter, and the ripple's smooth part.
 #: Each is taken over the odd number of samples nearest it at the recording's rate, so
 #: a quantity means the same at every sample rate.
@@ -137,7 +143,7 @@ def measured_phase(x: np.ndarray, rate_hz: float, i_cmd: int, i_end: int,
     loading = idx[idx <= i_peak]
     slopes = np.abs(np.diff(dev[loading]) / np.diff(loading)) * rate_hz
     after = idx[idx >= i_peak]
-    target = rise - 0.63 * (rise - static)
+    target = rise - RELAXED_SHARE * (rise - static)
     crossed = after[np.sign(rise) * (dev[after] - target) <= 0]
     if rise == 0:
         return out
@@ -217,7 +223,7 @@ class PhysicalFeatures(RecordingFeatures):
     'thumb_x:out_rise [N]'
     """
 
-    _version = 33  # 33: a session is its rig's
+    _version = 33  # the cached rows' layout and meaning: raised whenever either changes
     _view_params = ("with_stderr", "relaxation")  # both are stored either way
     #: Recordings per batched fit: 64 x 2 rubbing channels keep the solver's pools of 16
     #: refilled (with a hold at the session's, a session is one batch, :meth:`_blocks`).
@@ -382,8 +388,8 @@ class PhysicalFeatures(RecordingFeatures):
         rate = m.sample_rate_hz
         cmd = {p: int(round(s * rate)) for p, s in command_times(m).items()}
         ends = {"out": cmd["back"], "back": x.shape[0]}
-        n = len(self._measured_kept())
-        return np.concatenate([measured_phase(x, rate, cmd[p], ends[p], int(round(0.3 * rate)))[:n]
+        n, peak = len(self._measured_kept()), int(round(PEAK_S * rate))
+        return np.concatenate([measured_phase(x, rate, cmd[p], ends[p], peak)[:n]
                                for p in PHASES])
 
     def _fit_all(self, recordings: Sequence[Recording]) -> list[dict[str, np.ndarray]]:
