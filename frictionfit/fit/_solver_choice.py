@@ -10,13 +10,11 @@ import optimistix as optx
 
 from frictionfit._system import available_cores
 from frictionfit.errors import FitError
-from frictionfit.fit.solver import DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
+from frictionfit.fit.solver import DATA_ATOL, DATA_FTOL, DATA_RTOL, BatchedLevenbergMarquardt
 
-__all__ = ["DATA_ATOL", "SOLVERS", "SolverSettings", "solver_settings"]
+__all__ = ["SOLVERS", "SolverSettings", "solver_settings"]
 
 SOLVERS = ("lm", "optx-lm", "dogleg", "gauss-newton")
-#: The step tolerance of the optimistix solvers named in :data:`SOLVERS` (their ``atol``).
-DATA_ATOL = 1e-8
 
 
 @dataclass(frozen=True)

@@ -37,13 +37,15 @@ import optimistix as optx
 
 from frictionfit.fit._numerics import normal_equations
 
-__all__ = ["DATA_FTOL", "DATA_RTOL", "BatchedLevenbergMarquardt"]
+__all__ = ["DATA_ATOL", "DATA_FTOL", "DATA_RTOL", "BatchedLevenbergMarquardt"]
 
 RUNNING, CONVERGED, NONFINITE = 0, 1, 2
 #: Step and cost tolerances of frictionfit's fits to noisy measurements: a relative change of
 #: 1e-6 in the cost is far below what their noise lets the data determine. The solver's own
 #: defaults are stricter, for problems that are solved to many digits.
 DATA_RTOL, DATA_FTOL = 1e-8, 1e-6
+#: The absolute step tolerance (``atol``) the optimistix solvers are given beside ``DATA_RTOL``.
+DATA_ATOL = 1e-8
 #: A converged point where a parameter's ``J^T J`` diagonal is below this share of the
 #: largest diagonal seen (its column ``1 / eps`` times shorter: it does not act in float64)
 #: is reported ``singular``, unless the problem says that such a parameter sits on a bound
