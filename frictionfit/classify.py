@@ -198,8 +198,8 @@ class SessionNormalised(TransformerMixin, BaseEstimator):
 
     Lab sessions differ by sensor offsets and gains, motor positions and material
     state, so every feature shifts and scales from day to day. This wrapper computes
-    ``features`` and z-scores each feature within each value of ``metadata[key]`` (of
-    each rig, ``metadata.rig``, apart),
+    ``features`` and z-scores each feature within each value of ``metadata[key]`` of
+    each rig (:func:`~frictionfit.recording.within_rig`),
     using only that session's own (unlabelled) recordings, at training and at
     prediction time alike: a session seen in training keeps its training
     statistics; a new session with at least ``min_group`` recordings in the

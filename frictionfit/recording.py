@@ -184,7 +184,6 @@ class Problem:
         return f"{chan}{self.detail}"
 
 
-
 def within_rig(metadata: Mapping, key: str = "session") -> Any:
     """``metadata[key]`` as a group of one rig: prefixed by ``metadata["rig"]`` and ``/``
     where a rig is named (two rigs' sessions numbered alike are two groups), as given where

@@ -184,9 +184,8 @@ def score_covariances(model: MeasurementModel, free: tuple[int, ...], u_free: np
     (:func:`~frictionfit.fit._noise.long_run_covariance`; ``J_t`` the weighted block's
     Jacobian row over the free parameters at ``u_free`` by forward differences of step
     :data:`SCORE_STEP` from ``resid`` through the residuals' own loop, ``r_t`` its residual
-    ``resid`` at ``u_free``, N;
-    ``rho`` the residuals' lag-one coefficient), in chunks of :data:`RESIDUAL_CHUNK`
-    items."""
+    ``resid`` at ``u_free``, N; ``rho`` the residuals' lag-one coefficient), in chunks of
+    :data:`RESIDUAL_CHUNK` items."""
     residuals = _residuals_fn(model, free)
     q = u_free.shape[1]
     steps = SCORE_STEP * np.eye(q)
