@@ -281,10 +281,12 @@ def test_emcee_of_a_session_held_fit_converges_and_carries_the_held_spread(sessi
     import frictionfit.uncertainty.measurement as um
 
     start = um._proposal_start
+    started = {}
 
     def too_wide(*args):  # twice the density's spread: only the density brings it back
         centre, covs = start(*args)
-        return centre, 4.0 * covs
+        started["covs"] = 4.0 * covs
+        return centre, started["covs"]
 
     monkeypatch.setattr(um, "_proposal_start", too_wide)
     res = take_trials(session_held, [0])
@@ -311,6 +313,8 @@ def test_emcee_of_a_session_held_fit_converges_and_carries_the_held_spread(sessi
         # proposal's it started from (twice that)
         sampled_sd = np.std(sampled[..., jj])
         density_sd = np.sqrt(res.density_cov[0][jj, jj])
+        start_sd = np.sqrt(started["covs"][0][jj, jj])
+        assert start_sd / density_sd > 1.5, (name, start_sd / density_sd)  # outside the band
         assert 1 / 1.08 < sampled_sd / density_sd < 1.08, (name, sampled_sd / density_sd)
         # reported: both with the holds' spread (a chain of the proposal: 2x)
         ratio = mc.sd[0][name] / laplace.sd[0][name]
