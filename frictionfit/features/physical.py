@@ -201,7 +201,8 @@ class PhysicalFeatures(RecordingFeatures):
         Include the relaxation quantities: fitted ``relax_frac``, ``tau`` and ``drag``, and
         ``relaxed_frac``, ``t_relax`` and ``relax_<ms>ms`` read off the force.
     decimate : int, default 1
-        Samples averaged per fitted point while the finger moves (10 while it holds).
+        Samples averaged per fitted point while the finger moves (while it holds: the
+        ``coarse`` blocks of :func:`~frictionfit.fit.measurement_data.measurement_data`).
     max_steps : int, default 200
         Solver step budget per trial.
     accept_max_steps : bool, default True
